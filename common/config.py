@@ -1,0 +1,263 @@
+"""One typed configuration tree: the paper's values in code, then a file, then ``--set``.
+
+Each section is a dataclass; constructors of the cores take the section they need
+(``StereoDepth.from_config(cfg)``). The effective tree goes into every recording's metadata,
+so a result can always be traced to the settings that made it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import tomllib
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from common.errors import ConfigError
+
+
+@dataclass
+class BusConfig:
+    """How a process joins Zenoh: peer on loopback by default, client towards a router when deployed."""
+
+    mode: str = "peer"  # peer | client | router
+    listen: list[str] = field(default_factory=list)
+    connect: list[str] = field(default_factory=list)
+    vehicle: str = "ego"
+    shared_memory: bool = False
+    multicast_scouting: bool = False
+    user: str = ""  # usrpwd authentication (client side)
+    password: str = ""
+    zenoh_config: str = ""  # a full Zenoh JSON5 file, applied before the fields above
+
+
+@dataclass
+class VolumeConfig:
+    """Volume of interest in the vehicle frame (the paper: 28.7 x 16.4 x 3.5 m ahead)."""
+
+    x_min: float = 0.0
+    x_max: float = 28.7
+    y_half: float = 8.2
+    z_min: float = 0.0
+    z_max: float = 3.5
+
+
+@dataclass
+class StereoConfig:
+    """Semi-global matching and reprojection (step 1)."""
+
+    num_disparities: int = 128
+    block_size: int = 3
+    p1_factor: int = 8
+    p2_factor: int = 32
+    uniqueness: int = 10
+    speckle_window: int = 100
+    speckle_range: int = 2
+    disp12_max_diff: int = 1
+    pre_filter_cap: int = 63
+    mode: str = "3way"  # 3way | sgbm | hh | hh4
+    fill_left_border: bool = True
+    decimation: int = 1  # keep every n-th point in x and y
+    min_points_depth_m: float = 0.5
+
+
+@dataclass
+class OdometryConfig:
+    """Stereo visual odometry with four-image circular matching (step 2)."""
+
+    max_features: int = 2000
+    fast_threshold: int = 20
+    match_radius_px: float = 200.0
+    ransac_iterations: int = 200
+    ransac_threshold_px: float = 1.5
+    min_inliers: int = 20
+    max_disparity: float = 256.0
+    min_disparity: float = 1.0
+    max_lost_frames: int = 5  # predicted frames bridged before the world is re-anchored
+    fuse_ins: bool = False
+
+
+@dataclass
+class VoxelConfig:
+    """Voxel map and colour flood-fill clustering (steps 3 and 4)."""
+
+    edge: float = 0.25
+    epsilon: float = 0.35  # Eq. 1 threshold on normalised colours
+    min_cluster_voxels: int = 4  # smaller clusters are merged into a neighbour or dropped
+    min_density: float = 0.02  # voxels / bounding-box volume (in voxels)
+    min_points_per_voxel: int = 2
+    keep_frames: int = 0  # 0 = the paper: a voxel without points this frame is removed
+    ground: str = "terrain"  # flat (z > ground_clearance) | terrain (height above local road)
+    ground_clearance: float = 0.2
+
+
+@dataclass
+class TrackerConfig:
+    """Greedy association, three queues and a 6-D Kalman filter (step 5)."""
+
+    w_position: float = 1.0
+    w_color: float = 2.0
+    w_size: float = 0.5
+    w_density: float = 0.5
+    gate: float = 3.0  # association threshold on the weighted distance
+    accept_frames: int = 3
+    ghost_frames: int = 5
+    moving_on_mps: float = 1.2
+    moving_off_mps: float = 0.7
+    process_noise: float = 1.0  # acceleration std (m/s^2)
+    measurement_noise: float = 0.15  # centroid std (m)
+
+
+@dataclass
+class RecorderConfig:
+    """MCAP output."""
+
+    compression: str = "zstd"  # none | lz4 | zstd
+    chunk_size: int = 1024 * 1024
+    split_size_mb: float = 0.0  # 0 = one file
+    split_duration_s: float = 0.0
+    keys: str = "stereovox/**"
+
+
+@dataclass
+class ReplayConfig:
+    """Camera replay."""
+
+    rate: float = 1.0
+    lockstep_timeout_s: float = 10.0
+    image_format: str = "raw"  # raw | png | jpeg on the wire
+
+
+@dataclass
+class Config:
+    """The whole tree."""
+
+    bus: BusConfig = field(default_factory=BusConfig)
+    volume: VolumeConfig = field(default_factory=VolumeConfig)
+    stereo: StereoConfig = field(default_factory=StereoConfig)
+    odometry: OdometryConfig = field(default_factory=OdometryConfig)
+    voxel: VoxelConfig = field(default_factory=VoxelConfig)
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    recorder: RecorderConfig = field(default_factory=RecorderConfig)
+    replay: ReplayConfig = field(default_factory=ReplayConfig)
+    health_period_s: float = 1.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), sort_keys=True)
+
+
+def _coerce(value: Any, hint: Any, where: str) -> Any:
+    origin = typing.get_origin(hint)
+    if dataclasses.is_dataclass(hint):
+        if not isinstance(value, dict):
+            raise ConfigError(f"{where}: expected a table, got {value!r}")
+        return _apply(hint(), value, where)
+    if origin is list:
+        if isinstance(value, str):
+            value = [v for v in value.split(",") if v]
+        if not isinstance(value, list):
+            raise ConfigError(f"{where}: expected a list, got {value!r}")
+        (item,) = typing.get_args(hint)
+        return [_coerce(v, item, f"{where}[]") for v in value]
+    if hint is bool:
+        if isinstance(value, str) and value.lower() in ("true", "false", "1", "0", "yes", "no"):
+            return value.lower() in ("true", "1", "yes")
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected true/false, got {value!r}")
+        return value
+    if hint in (int, float):
+        try:
+            if isinstance(value, bool):
+                raise ValueError
+            out = hint(value)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{where}: expected {hint.__name__}, got {value!r}") from None
+        if hint is int and isinstance(value, float) and value != out:
+            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+        return out
+    if hint is str:
+        return str(value)
+    raise ConfigError(f"{where}: unsupported type {hint!r}")
+
+
+def _apply(obj: Any, values: dict[str, Any], where: str = "") -> Any:
+    hints = typing.get_type_hints(type(obj))
+    names = {f.name for f in dataclasses.fields(obj)}
+    for key, value in values.items():
+        path = f"{where}.{key}" if where else key
+        if key not in names:
+            raise ConfigError(f"unknown configuration key {path!r}; known here: {sorted(names)}")
+        current = getattr(obj, key)
+        if dataclasses.is_dataclass(current) and isinstance(value, dict):
+            _apply(current, value, path)
+        else:
+            setattr(obj, key, _coerce(value, hints[key], path))
+    return obj
+
+
+def _parse_scalar(text: str) -> Any:
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError:
+        return text
+
+
+def load_file(path: str | Path) -> dict[str, Any]:
+    """Read a TOML, YAML or JSON configuration file into a plain mapping."""
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as exc:
+        raise ConfigError(f"cannot read configuration {p}: {exc.strerror}") from None
+    try:
+        if p.suffix == ".toml":
+            data = tomllib.loads(text)
+        else:
+            data = yaml.safe_load(text) or {}
+    except (tomllib.TOMLDecodeError, yaml.YAMLError) as exc:
+        raise ConfigError(f"{p}: not valid {p.suffix.lstrip('.') or 'YAML'}: {exc}") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{p}: the top level must be a table")
+    return data
+
+
+def parse_set(item: str) -> dict[str, Any]:
+    """``voxel.edge=0.2`` -> ``{"voxel": {"edge": 0.2}}``."""
+    if "=" not in item:
+        raise ConfigError(f"--set takes key=value, got {item!r}")
+    dotted, text = item.split("=", 1)
+    keys = [k for k in dotted.strip().split(".") if k]
+    if not keys:
+        raise ConfigError(f"--set has an empty key: {item!r}")
+    tree: dict[str, Any] = {keys[-1]: _parse_scalar(text)}
+    for k in reversed(keys[:-1]):
+        tree = {k: tree}
+    return tree
+
+
+def load_config(
+    file: str | Path | None = None,
+    sets: typing.Iterable[str] = (),
+    base: dict[str, Any] | None = None,
+) -> Config:
+    """Defaults in code, then ``base`` (e.g. a recording's metadata), then a file, then ``--set``."""
+    cfg = Config()
+    if base:
+        _apply(cfg, base)
+    if file:
+        _apply(cfg, load_file(file))
+    for item in sets:
+        _apply(cfg, parse_set(item))
+    return cfg
+
+
+def from_dict(values: dict[str, Any]) -> Config:
+    """A configuration stored as a mapping (a recording's metadata) back into the tree."""
+    return _apply(Config(), values)

@@ -1,0 +1,75 @@
+"""The ``stereovox`` command: one sub-command per module, imported only when used.
+
+Each module named in COMMANDS exposes ``add_arguments(parser)`` and ``run(args) -> int``; the
+argument parsing lives there, next to the code it drives, and this file only dispatches.
+Errors stereovox raises on purpose print one line and exit 2; nothing else is caught.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from collections.abc import Sequence
+
+from common.errors import StereovoxError
+
+#: sub-command -> (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "run": ("services.runner", "run one service as its own process"),
+    "record": ("services.recorder", "record bus keys to MCAP"),
+    "replay": ("services.camera_replay", "publish a recording's frames and ground truth"),
+    "topics": ("services.topics", "list, echo or measure the rate of bus keys"),
+    "simulate": ("common.scenarios.simulate", "render a synthetic stereo driving scenario with ground truth"),
+    "evaluate": ("common.evaluation.evaluate", "score a run against its ground truth"),
+    "import": ("common.datasets.importer", "import KITTI or Middlebury data into a recording"),
+    "process": ("services.pipeline", "run every stage in one process over a recording (no bus)"),
+    "demo": ("services.demo", "run the whole pipeline as separate processes on the bundled recording"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="stereovox", description=__doc__.splitlines()[0])
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, (module, help_text) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.set_defaults(_module=module)
+        importlib.import_module(module).add_arguments(p)
+    return parser
+
+
+def _parser_for(argv: Sequence[str]) -> argparse.ArgumentParser:
+    """Import only the module the command needs, so `stereovox replay` does not load OpenCV's SGBM."""
+    name = next((a for a in argv if not a.startswith("-")), None)
+    if name not in COMMANDS:
+        return build_parser()
+    parser = argparse.ArgumentParser(prog="stereovox")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    module, help_text = COMMANDS[name]
+    p = sub.add_parser(name, help=help_text, description=help_text)
+    p.set_defaults(_module=module)
+    importlib.import_module(module).add_arguments(p)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args_list = list(sys.argv[1:] if argv is None else argv)
+    args = _parser_for(args_list).parse_args(args_list)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(asctime)s %(name)s %(levelname)s %(message)s",
+    )
+    try:
+        return int(importlib.import_module(args._module).run(args) or 0)
+    except StereovoxError as exc:
+        print(f"stereovox {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
