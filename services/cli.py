@@ -29,35 +29,28 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _top_parser() -> tuple[argparse.ArgumentParser, argparse._SubParsersAction]:
     parser = argparse.ArgumentParser(prog="stereovox", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name, (module, help_text) in COMMANDS.items():
-        p = sub.add_parser(name, help=help_text, description=help_text)
-        p.set_defaults(_module=module)
-        importlib.import_module(module).add_arguments(p)
-    return parser
+    return parser, sub
 
 
-def _parser_for(argv: Sequence[str]) -> argparse.ArgumentParser:
+def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     """Import only the module the command needs, so `stereovox replay` does not load OpenCV's SGBM."""
+    parser, sub = _top_parser()
     name = next((a for a in argv if not a.startswith("-")), None)
-    if name not in COMMANDS:
-        return build_parser()
-    parser = argparse.ArgumentParser(prog="stereovox")
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    module, help_text = COMMANDS[name]
-    p = sub.add_parser(name, help=help_text, description=help_text)
-    p.set_defaults(_module=module)
-    importlib.import_module(module).add_arguments(p)
+    for command, (module, help_text) in COMMANDS.items():
+        p = sub.add_parser(command, help=help_text, description=help_text)
+        p.set_defaults(_module=module)
+        if command == name:
+            importlib.import_module(module).add_arguments(p)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args_list = list(sys.argv[1:] if argv is None else argv)
-    args = _parser_for(args_list).parse_args(args_list)
+    args = build_parser(args_list).parse_args(args_list)
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
