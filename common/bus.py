@@ -54,7 +54,9 @@ def open_session(bus: BusConfig) -> zenoh.Session:
     try:
         return zenoh.open(zenoh_config(bus))
     except zenoh.ZError as exc:
-        raise BusError(f"cannot open a Zenoh {bus.mode} session (listen {bus.listen}, connect {bus.connect}): {exc}") from None
+        raise BusError(
+            f"cannot open a Zenoh {bus.mode} session (listen {bus.listen}, connect {bus.connect}): {exc}"
+        ) from None
 
 
 class Publisher:
@@ -106,7 +108,9 @@ class _Subscriber(ABC, Generic[M]):
             now = time.monotonic()
             if now - self._last_log >= 1.0:  # at most one log line a second per subscriber
                 self._last_log = now
-                log.warning("dropped a malformed message on %s: %s (%d so far)", sample.key_expr, exc, self.decode_errors)
+                log.warning(
+                    "dropped a malformed message on %s: %s (%d so far)", sample.key_expr, exc, self.decode_errors
+                )
             return
         self.received += 1
         self._push(Received(str(sample.key_expr), msg, time.time_ns()))

@@ -341,7 +341,7 @@ def stamp_output(out: M, inputs: typing.Sequence[Message], stage: str, start_ns:
     first = inputs[0]
     out.frame_id = first.frame_id
     out.stamp_ns = first.stamp_ns
-    out.timing = merged_trail(*inputs) + [(stage, start_ns, now_ns())]
+    out.timing = [*merged_trail(*inputs), (stage, start_ns, now_ns())]
     return out
 
 

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
-from mcap.exceptions import McapError
-from mcap.records import Channel, Message as McapMessage, Metadata, Schema
+from mcap.records import Channel, Metadata, Schema
+from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
@@ -188,7 +188,7 @@ class RecordingReader:
             reader = StreamReader(f, skip_magic=False)
             try:
                 yield from reader.records
-            except (McapError, EOFError, ValueError, KeyError, OSError, Exception) as exc:  # noqa: BLE001
+            except Exception as exc:  # the reader raises McapError, EOFError, struct and zstd errors
                 offset = f.tell()
                 self.truncated = RecordingError(
                     f"recording ends early ({type(exc).__name__}: {exc}); messages before it were read",
@@ -215,7 +215,9 @@ class RecordingReader:
                     yield RawRecord(key, schema, bytes(record.data), record.log_time, record.publish_time)
         self._metadata = metadata
 
-    def messages(self, keys: Iterable[str] | None = None, topics: Iterable[str] | None = None) -> Iterator[tuple[str, Message]]:
+    def messages(
+        self, keys: Iterable[str] | None = None, topics: Iterable[str] | None = None
+    ) -> Iterator[tuple[str, Message]]:
         """Decoded messages ``(key, message)``; filter by full keys or by topic (``odometry/ego``).
 
         Payloads that do not decode are counted in :attr:`decode_errors` and skipped.
