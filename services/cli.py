@@ -26,6 +26,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "import": ("common.datasets.importer", "import KITTI or Middlebury data into a recording"),
     "process": ("services.pipeline", "run every stage in one process over a recording (no bus)"),
     "demo": ("services.demo", "run the whole pipeline as separate processes on the bundled recording"),
+    "launch": ("services.launch", "start and supervise the services a launch spec puts on this host"),
+    "router": ("services.router", "run a Zenoh router (the wheel ships no zenohd)"),
 }
 
 
