@@ -106,9 +106,8 @@ def summary(report: dict[str, Any], run_path: Path) -> str:
     lines.append(f"obstacles in the last frame: {moving} moving, {stationary} stationary")
     mv = report.get("moving") or {}
     if mv:
-        lines.append(
-            f"moving obstacles: TP {_fmt(mv.get('tp_pct'))} %  FP {_fmt(mv.get('fp_pct'))} %  FN {_fmt(mv.get('fn_pct'))} %"
-        )
+        shares = "  ".join(f"{k} {_fmt(mv.get(k + '_pct'))} %" for k in ("tp", "fp", "fn"))
+        lines.append(f"moving obstacles: {shares}")
     return "\n".join(lines)
 
 
