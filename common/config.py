@@ -106,10 +106,17 @@ class TrackerConfig:
     gate: float = 3.0  # association threshold on the weighted distance
     accept_frames: int = 3
     ghost_frames: int = 5
-    moving_on_mps: float = 1.2
-    moving_off_mps: float = 0.7
-    process_noise: float = 1.0  # acceleration std (m/s^2)
+    moving_on_mps: float = 0.7  # evaluation: moving >= 1.0 m/s, stationary < 0.3 m/s
+    moving_off_mps: float = 0.4
+    moving_sigma_k: float = 1.5  # turn moving only when speed - k * speed std > moving_on_mps
+    process_noise: float = 1.0  # horizontal acceleration std (m/s^2)
+    process_noise_z: float = 0.1  # vertical acceleration std (m/s^2): obstacles stay on the road
     measurement_noise: float = 0.15  # centroid std (m)
+    initial_speed_std: float = 5.0  # horizontal velocity std of a new track (m/s)
+    initial_vertical_speed_std: float = 0.3  # its vertical velocity std (m/s)
+    extent_tolerance_voxels: float = 0.5  # box extent change (voxel edges) that triggers face-based motion
+    appearance_smoothing: float = 0.5  # weight of the newest cluster in a track's colour/size/density
+    frame_period_s: float = 0.1  # time step when stamps cannot give one
 
 
 @dataclass

@@ -1,0 +1,293 @@
+"""Step 5 of the paper: clusters to tracked obstacles with an absolute velocity.
+
+Each frame: guard the input (stale, new world, gap), predict every track, associate clusters
+greedily (Algorithm IV-C.1), correct the associated tracks with a Kalman filter, move tracks
+between the acceptance, tracked and ghost queues, start tracks for the clusters left over, and
+label each track moving or stationary from its speed. Everything lives in the world frame of the
+odometry, so a velocity is over ground; ``velocity_rel`` subtracts the vehicle's own.
+
+Bad input is handled where it arrives and counted in ``counters``: clusters with non-finite
+geometry are dropped (``nan_clusters``); a frame whose id is not newer than the last is ignored
+and answered with the current tracks unchanged (``stale_frames``); a gap in frame ids is
+predicted through with the stamp difference (``gaps``, ``gap_frames``), falling back to the
+nominal period when stamps do not advance (``bad_stamps``); a new ``world_epoch`` restarts every
+track (``epoch_resets``). When the egomotion is flagged invalid (``ego_invalid``) the clusters
+were placed in the world with a pose the odometry does not vouch for: tracks are predicted and
+still associated (so they stay alive and keep their identity), but the filter is not corrected
+and the moving labels are held until a valid frame.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from common.config import Config
+from common.messages import Clusters, EgoMotion, Obstacle, Obstacles
+from services.tracker import kalman
+from services.tracker.association import Weights, distance_matrix, greedy_pairs
+from services.tracker.displacement import displacement
+from services.tracker.motion_state import EgoVelocity, Hysteresis, label, speed_and_sigma
+from services.tracker.observations import Observations, observe
+from services.tracker.queues import advance
+from services.tracker.track import QUEUE_NAMES, TrackTable
+
+NDArray = npt.NDArray[Any]
+
+COUNTERS: tuple[str, ...] = (
+    "frames",
+    "empty_frames",
+    "nan_clusters",
+    "stale_frames",
+    "gaps",
+    "gap_frames",
+    "bad_stamps",
+    "ego_invalid",
+    "epoch_resets",
+    "tracks_born",
+    "tracks_dropped",
+)
+
+
+class Tracker:
+    """Greedy association, three queues and a 6-D Kalman filter per track (Sect. IV-C)."""
+
+    def __init__(
+        self,
+        weights: Weights,
+        accept_frames: int,
+        ghost_frames: int,
+        hysteresis: Hysteresis,
+        accel_std: tuple[float, float, float],
+        measurement_std: float,
+        initial_velocity_std: tuple[float, float, float],
+        extent_tolerance_voxels: float,
+        appearance_smoothing: float,
+        frame_period_s: float,
+    ) -> None:
+        self.weights = weights
+        self.accept_frames = accept_frames
+        self.ghost_frames = ghost_frames
+        self.hysteresis = hysteresis
+        self.accel_std = np.asarray(accel_std, dtype=np.float64)
+        self.r = np.eye(3) * measurement_std**2
+        self.p0 = kalman.initial_covariance(np.full(3, measurement_std), np.asarray(initial_velocity_std))
+        self.extent_tolerance_voxels = extent_tolerance_voxels
+        self.smoothing = appearance_smoothing
+        self.frame_period_s = frame_period_s
+        self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
+        self.tracks = TrackTable()
+        self.ego = EgoVelocity()
+        self._epoch: int | None = None
+        self._last_frame: int | None = None
+        self._last_stamp_ns = 0
+        self._next_id = 1
+
+    @classmethod
+    def from_config(cls, cfg: Config) -> Tracker:
+        t = cfg.tracker
+        return cls(
+            weights=Weights(t.w_position, t.w_color, t.w_size, t.w_density, t.gate),
+            accept_frames=t.accept_frames,
+            ghost_frames=t.ghost_frames,
+            hysteresis=Hysteresis(t.moving_on_mps, t.moving_off_mps, t.moving_sigma_k),
+            accel_std=(t.process_noise, t.process_noise, t.process_noise_z),
+            measurement_std=t.measurement_noise,
+            initial_velocity_std=(t.initial_speed_std, t.initial_speed_std, t.initial_vertical_speed_std),
+            extent_tolerance_voxels=t.extent_tolerance_voxels,
+            appearance_smoothing=t.appearance_smoothing,
+            frame_period_s=t.frame_period_s,
+        )
+
+    def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
+        """One frame of clusters (world frame) and its egomotion -> every track as an obstacle."""
+        if self._is_stale(clusters):
+            return self._report(clusters, ego)
+        dt, elapsed = self._time_step(clusters)
+        trusted = self._observe_ego(ego)
+        obs = self._observe(clusters)
+        self._predict(dt)
+        rows, cols = self._associate(obs)
+        if trusted:
+            self._correct(rows, obs.take(cols), clusters.voxel_edge)
+        self._advance_queues(rows, elapsed)
+        self._spawn(obs.take(np.setdiff1d(np.arange(len(obs)), cols)))
+        if trusted:
+            self._label_motion()
+        return self._report(clusters, ego)
+
+    # ------------------------------------------------------------------ input guards
+
+    def _is_stale(self, clusters: Clusters) -> bool:
+        """Old epoch or old frame: ignore. A newer epoch restarts the world and its tracks."""
+        epoch = clusters.world_epoch
+        if self._epoch is not None and epoch < self._epoch:
+            self.counters["stale_frames"] += 1
+            return True
+        if self._epoch is not None and epoch > self._epoch:
+            self.counters["epoch_resets"] += 1
+            self.tracks = TrackTable()
+            self._last_frame = None
+        self._epoch = epoch
+        if self._last_frame is not None and clusters.frame_id <= self._last_frame:
+            self.counters["stale_frames"] += 1
+            return True
+        return False
+
+    def _time_step(self, clusters: Clusters) -> tuple[float, int]:
+        """Seconds and frames since the previous processed frame."""
+        self.counters["frames"] += 1
+        if self._last_frame is None:
+            dt, elapsed = self.frame_period_s, 1
+        else:
+            elapsed = clusters.frame_id - self._last_frame
+            if elapsed > 1:
+                self.counters["gaps"] += 1
+                self.counters["gap_frames"] += elapsed - 1
+            dt = (clusters.stamp_ns - self._last_stamp_ns) * 1e-9
+            if not dt > 0.0:
+                self.counters["bad_stamps"] += 1
+                dt = elapsed * self.frame_period_s
+        self._last_frame, self._last_stamp_ns = clusters.frame_id, clusters.stamp_ns
+        return dt, elapsed
+
+    def _observe_ego(self, ego: EgoMotion) -> bool:
+        """Update the vehicle's velocity; whether this frame's world placement can be trusted."""
+        trusted = bool(ego.valid) and bool(np.isfinite(ego.pose).all())
+        if not trusted:
+            self.counters["ego_invalid"] += 1
+        self.ego.observe(ego.pose, trusted, ego.world_epoch, ego.stamp_ns)
+        return trusted
+
+    def _observe(self, clusters: Clusters) -> Observations:
+        obs, dropped = observe(clusters.clusters)
+        self.counters["nan_clusters"] += dropped
+        if len(obs) == 0:
+            self.counters["empty_frames"] += 1
+        return obs
+
+    # ------------------------------------------------------------------ the paper's steps
+
+    def _predict(self, dt: float) -> None:
+        t = self.tracks
+        if len(t):
+            t.x, t.p = kalman.predict(t.x, t.p, kalman.transition(dt), kalman.process_noise(dt, self.accel_std))
+
+    def _associate(self, obs: Observations) -> tuple[NDArray, NDArray]:
+        t = self.tracks
+        d = distance_matrix(
+            self.weights,
+            t.x[:, 0:3] + t.offset, t.rgb, t.hsl, t.extent, t.density,
+            obs.centroid, obs.rgb, obs.hsl, obs.extent, obs.density,
+        )  # fmt: skip
+        return greedy_pairs(d, self.weights.gate)
+
+    def _correct(self, rows: NDArray, obs: Observations, voxel_edge: float) -> None:
+        """Kalman correction with the displacement the cluster's box supports (displacement.py)."""
+        if len(rows) == 0:
+            return
+        t = self.tracks
+        moved = displacement(
+            t.centroid[rows], t.bbox_min[rows], t.bbox_max[rows],
+            obs.centroid, obs.bbox_min, obs.bbox_max,
+            t.x[rows, 0:3] - t.anchor[rows], self.extent_tolerance_voxels * voxel_edge,
+        )  # fmt: skip
+        x, p = kalman.update(t.x[rows], t.p[rows], t.anchor[rows] + moved, self.r)
+        t.x[rows], t.p[rows] = x, p
+        t.anchor[rows] = x[:, 0:3]
+        t.offset[rows] = obs.centroid - x[:, 0:3]
+        t.centroid[rows], t.bbox_min[rows], t.bbox_max[rows] = obs.centroid, obs.bbox_min, obs.bbox_max
+        t.volume[rows] = obs.volume
+        a = self.smoothing
+        t.rgb[rows] += a * (obs.rgb - t.rgb[rows])
+        hue_step = (obs.hsl[:, 0] - t.hsl[rows, 0] + 0.5) % 1.0 - 0.5  # the short way round
+        t.hsl[rows, 1:3] += a * (obs.hsl[:, 1:3] - t.hsl[rows, 1:3])
+        t.hsl[rows, 0] = (t.hsl[rows, 0] + a * hue_step) % 1.0
+        t.extent[rows] += a * (obs.extent - t.extent[rows])
+        t.density[rows] += a * (obs.density - t.density[rows])
+
+    def _advance_queues(self, rows: NDArray, elapsed: int) -> None:
+        seen = np.zeros(len(self.tracks), dtype=bool)
+        seen[rows] = True
+        keep = advance(self.tracks, seen, elapsed, self.accept_frames, self.ghost_frames)
+        self.counters["tracks_dropped"] += int((~keep).sum())
+        self.tracks.keep(keep)
+
+    def _spawn(self, obs: Observations) -> None:
+        n = len(obs)
+        if n == 0:
+            return
+        self.counters["tracks_born"] += n
+        ids = np.arange(self._next_id, self._next_id + n, dtype=np.int64)
+        self._next_id += n
+        self.tracks.extend(
+            TrackTable(
+                ids=ids,
+                queue=np.zeros(n, dtype=np.int8),
+                x=np.hstack([obs.centroid, np.zeros((n, 3))]),
+                p=np.broadcast_to(self.p0, (n, 6, 6)).copy(),
+                anchor=obs.centroid.copy(),
+                offset=np.zeros((n, 3)),
+                hits=np.ones(n, dtype=np.int64),
+                misses=np.zeros(n, dtype=np.int64),
+                age=np.ones(n, dtype=np.int64),
+                moving=np.zeros(n, dtype=bool),
+                rgb=obs.rgb.copy(),
+                hsl=obs.hsl.copy(),
+                extent=obs.extent,
+                density=obs.density.copy(),
+                volume=obs.volume.copy(),
+                centroid=obs.centroid.copy(),
+                bbox_min=obs.bbox_min.copy(),
+                bbox_max=obs.bbox_max.copy(),
+            )
+        )
+
+    def _label_motion(self) -> None:
+        t = self.tracks
+        speed, sigma = speed_and_sigma(t.x[:, 3:6], t.p[:, 3:6, 3:6])
+        t.moving = label(t.moving, speed, sigma, self.hysteresis)
+
+    # ------------------------------------------------------------------ output
+
+    def _report(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
+        t = self.tracks
+        centroid = t.x[:, 0:3] + t.offset
+        shift = centroid - t.centroid
+        bbox_min, bbox_max = t.bbox_min + shift, t.bbox_max + shift
+        velocity = t.x[:, 3:6].copy()
+        speed, _ = speed_and_sigma(velocity, t.p[:, 3:6, 3:6])
+        rotation = ego.pose[0:3, 0:3] if np.isfinite(ego.pose).all() else np.eye(3)
+        velocity_rel = (velocity - self.ego.velocity) @ rotation  # R^T (v - v_ego), row-wise
+        position_cov = t.p[:, 0:3, 0:3].copy()
+        velocity_cov = t.p[:, 3:6, 3:6].copy()
+        colour = t.rgb.astype(np.float32)
+        columns = [c.tolist() for c in (t.ids, t.queue, t.volume, speed, t.moving, t.age)]
+        obstacles = [
+            Obstacle(
+                id=track_id,
+                state=QUEUE_NAMES[queue],
+                centroid=centroid[i],
+                bbox_min=bbox_min[i],
+                bbox_max=bbox_max[i],
+                volume=volume,
+                velocity=velocity[i],
+                velocity_rel=velocity_rel[i],
+                speed=s,
+                moving=moving,
+                position_cov=position_cov[i],
+                velocity_cov=velocity_cov[i],
+                age=age,
+                color_rgb=colour[i],
+            )
+            for i, (track_id, queue, volume, s, moving, age) in enumerate(zip(*columns, strict=True))
+        ]
+        return Obstacles(
+            frame_id=clusters.frame_id,
+            stamp_ns=clusters.stamp_ns,
+            obstacles=obstacles,
+            world_epoch=clusters.world_epoch,
+            ego_pose=np.array(ego.pose, dtype=np.float64),
+        )

@@ -1,0 +1,70 @@
+"""One frame's clusters as arrays, with the unusable ones (non-finite geometry) left out."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from common.messages import Cluster
+
+NDArray = npt.NDArray[Any]
+
+
+@dataclass(frozen=True)
+class Observations:
+    """Features of ``m`` clusters, row ``i`` from cluster ``index[i]`` of the message."""
+
+    index: NDArray  # (m,) position in the message's cluster list
+    centroid: NDArray  # (m, 3)
+    bbox_min: NDArray
+    bbox_max: NDArray
+    rgb: NDArray
+    hsl: NDArray
+    density: NDArray  # (m,)
+    volume: NDArray
+
+    @property
+    def extent(self) -> NDArray:
+        return self.bbox_max - self.bbox_min
+
+    def __len__(self) -> int:
+        return int(self.index.shape[0])
+
+    def take(self, rows: NDArray) -> Observations:
+        """The subset of rows ``rows``."""
+        return Observations(*(getattr(self, name)[rows] for name in self.__dataclass_fields__))
+
+
+def observe(clusters: list[Cluster]) -> tuple[Observations, int]:
+    """Stack the clusters' features; return them and how many were dropped as non-finite.
+
+    A cluster with a NaN or infinite centroid, box, colour or density cannot be predicted, compared
+    or filtered, and one bad row would poison the whole batched filter, so it is dropped here.
+    """
+    n = len(clusters)
+    geometry = np.empty((n, 9))
+    colour = np.empty((n, 6))
+    scalars = np.empty((n, 2))
+    for i, c in enumerate(clusters):
+        geometry[i, 0:3] = c.centroid
+        geometry[i, 3:6] = c.bbox_min
+        geometry[i, 6:9] = c.bbox_max
+        colour[i, 0:3] = c.color_mean_rgb
+        colour[i, 3:6] = c.color_mean_hsl
+        scalars[i] = (c.density, c.volume)
+    finite = np.isfinite(geometry).all(axis=1) & np.isfinite(colour).all(axis=1) & np.isfinite(scalars).all(axis=1)
+    keep = np.flatnonzero(finite)
+    obs = Observations(
+        index=keep,
+        centroid=geometry[keep, 0:3],
+        bbox_min=geometry[keep, 3:6],
+        bbox_max=geometry[keep, 6:9],
+        rgb=colour[keep, 0:3],
+        hsl=colour[keep, 3:6],
+        density=scalars[keep, 0],
+        volume=scalars[keep, 1],
+    )
+    return obs, n - int(keep.shape[0])

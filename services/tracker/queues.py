@@ -1,0 +1,39 @@
+"""The paper's three queues: acceptance, tracked and ghost, and the moves between them.
+
+- acceptance: a new cluster; promoted to tracked once seen ``accept_frames`` consecutive frames
+  (its birth frame included), discarded the first frame it is not seen;
+- tracked: seen this frame; becomes a ghost the first frame it is not;
+- ghost: not seen for ``misses`` frames; back to tracked when seen again, discarded once unseen
+  for more than ``ghost_frames`` frames.
+Frames lost in a gap of the input count as frames unseen, so a long gap retires ghosts.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from services.tracker.track import ACCEPTANCE, GHOST, TRACKED, TrackTable
+
+NDArray = npt.NDArray[Any]
+
+
+def advance(tracks: TrackTable, seen: NDArray, elapsed: int, accept_frames: int, ghost_frames: int) -> NDArray:
+    """Move every track to its queue for this frame; return the mask of tracks to keep.
+
+    ``seen`` marks the tracks associated with a cluster this frame; ``elapsed`` is the number of
+    frames since the previous processed one (1 without a gap).
+    """
+    tracks.age += elapsed
+    tracks.hits = np.where(seen, tracks.hits + 1, 0)
+    tracks.misses = np.where(seen, 0, tracks.misses + elapsed)
+    was = tracks.queue
+    queue = was.copy()
+    queue[seen & (was == ACCEPTANCE) & (tracks.hits >= accept_frames)] = TRACKED
+    queue[seen & (was == GHOST)] = TRACKED
+    queue[~seen & (was == TRACKED)] = GHOST
+    tracks.queue = queue
+    dropped = ~seen & ((was == ACCEPTANCE) | ((queue == GHOST) & (tracks.misses > ghost_frames)))
+    return ~dropped

@@ -1,0 +1,61 @@
+"""Every track of the three queues, stored column-wise so a frame's maths runs on whole arrays.
+
+A row is one track: its queue, its Kalman state, the appearance the association compares with
+(colour, size, density, a running mean of the clusters it took), and the last cluster's box and
+centroid, which the displacement measurement starts from.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+NDArray = npt.NDArray[Any]
+
+ACCEPTANCE, TRACKED, GHOST = 0, 1, 2
+QUEUE_NAMES: tuple[str, ...] = ("acceptance", "tracked", "ghost")
+
+
+def _empty(*shape: int, dtype: Any = np.float64) -> Any:
+    return field(default_factory=lambda: np.zeros((0, *shape), dtype=dtype))
+
+
+@dataclass
+class TrackTable:
+    """Column store of tracks; every field has the track axis first."""
+
+    ids: NDArray = _empty(dtype=np.int64)
+    queue: NDArray = _empty(dtype=np.int8)
+    x: NDArray = _empty(6)  # Kalman state
+    p: NDArray = _empty(6, 6)  # Kalman covariance
+    anchor: NDArray = _empty(3)  # filter position right after the last correction
+    offset: NDArray = _empty(3)  # last cluster centroid minus that filter position
+    hits: NDArray = _empty(dtype=np.int64)  # consecutive frames seen
+    misses: NDArray = _empty(dtype=np.int64)  # frames since last seen
+    age: NDArray = _empty(dtype=np.int64)  # frames since birth
+    moving: NDArray = _empty(dtype=bool)
+    rgb: NDArray = _empty(3)
+    hsl: NDArray = _empty(3)
+    extent: NDArray = _empty(3)
+    density: NDArray = _empty()
+    volume: NDArray = _empty()
+    centroid: NDArray = _empty(3)  # last cluster's
+    bbox_min: NDArray = _empty(3)
+    bbox_max: NDArray = _empty(3)
+
+    def __len__(self) -> int:
+        return int(self.ids.shape[0])
+
+    def keep(self, mask: NDArray) -> None:
+        """Drop the rows where ``mask`` is False."""
+        for f in dataclasses.fields(self):
+            setattr(self, f.name, getattr(self, f.name)[mask])
+
+    def extend(self, other: TrackTable) -> None:
+        """Append the rows of ``other``."""
+        for f in dataclasses.fields(self):
+            setattr(self, f.name, np.concatenate([getattr(self, f.name), getattr(other, f.name)]))

@@ -1,0 +1,346 @@
+"""Tracker core (step 5): greedy association, queues, Kalman filter, moving labels, bad input."""
+
+from __future__ import annotations
+
+import colorsys
+
+import numpy as np
+import pytest
+from filterpy.common import Q_discrete_white_noise
+from filterpy.kalman import KalmanFilter
+
+from common.config import Config
+from common.geometry import make_pose, rot_z
+from common.messages import Cluster, Clusters, EgoMotion, Obstacles, decode, encode
+from services.tracker import Tracker, kalman
+from services.tracker.association import Weights, distance_matrix, greedy_pairs
+
+EDGE = 0.25
+PERIOD_NS = 100_000_000
+
+
+def cluster(
+    cid: int,
+    centre: tuple[float, float, float] | np.ndarray,
+    size: tuple[float, float, float] = (1.0, 1.0, 1.5),
+    rgb: tuple[float, float, float] = (0.6, 0.2, 0.2),
+    density: float = 0.5,
+) -> Cluster:
+    """A box-shaped cluster: centroid at ``centre``, box of ``size``, uniform colour."""
+    c = np.asarray(centre, dtype=np.float64)
+    half = np.asarray(size, dtype=np.float64) / 2
+    hsl = colorsys.rgb_to_hls(*rgb)
+    voxels = max(1, int(np.prod(np.asarray(size) / EDGE) * density))
+    return Cluster(
+        id=cid,
+        voxels=np.zeros((0, 3), dtype=np.int32),
+        voxel_count=voxels,
+        color_mean_rgb=np.asarray(rgb, dtype=np.float32),
+        color_var_rgb=np.zeros(3, dtype=np.float32),
+        color_mean_hsl=np.asarray((hsl[0], hsl[2], hsl[1]), dtype=np.float32),
+        color_var_hsl=np.zeros(3, dtype=np.float32),
+        bbox_min=c - half,
+        bbox_max=c + half,
+        centroid=c,
+        density=density,
+        volume=voxels * EDGE**3,
+    )
+
+
+def frame(frame_id: int, clusters: list[Cluster], epoch: int = 0, pose: np.ndarray | None = None) -> Clusters:
+    return Clusters(
+        frame_id=frame_id,
+        stamp_ns=frame_id * PERIOD_NS,
+        clusters=clusters,
+        voxel_edge=EDGE,
+        world_epoch=epoch,
+        ego_pose=np.eye(4) if pose is None else pose,
+    )
+
+
+def ego(frame_id: int, pose: np.ndarray | None = None, valid: bool = True, epoch: int = 0) -> EgoMotion:
+    return EgoMotion(
+        frame_id=frame_id,
+        stamp_ns=frame_id * PERIOD_NS,
+        pose=np.eye(4) if pose is None else pose,
+        valid=valid,
+        world_epoch=epoch,
+    )
+
+
+def step(tracker: Tracker, frame_id: int, clusters: list[Cluster], **kw: object) -> Obstacles:
+    pose = kw.pop("pose", None)
+    epoch = kw.pop("epoch", 0)
+    valid = kw.pop("valid", True)
+    return tracker.process(frame(frame_id, clusters, epoch, pose), ego(frame_id, pose, valid, epoch))  # type: ignore[arg-type]
+
+
+def new_tracker(**overrides: object) -> Tracker:
+    cfg = Config()
+    for key, value in overrides.items():
+        setattr(cfg.tracker, key, value)
+    return Tracker.from_config(cfg)
+
+
+# ------------------------------------------------------------------ association
+
+
+def test_greedy_takes_smallest_pair_first_not_the_row_minimum() -> None:
+    # track 0's best cluster is 0 (1.0), but (track 1, cluster 0) is smaller still (0.5): greedy
+    # gives cluster 0 to track 1 and track 0 falls back to cluster 1.
+    d = np.array([[1.0, 2.0], [0.5, 2.5]])
+    rows, cols = greedy_pairs(d, gate=3.0)
+    assert dict(zip(rows.tolist(), cols.tolist(), strict=True)) == {1: 0, 0: 1}
+
+
+def test_greedy_leaves_pairs_over_the_threshold_unassociated() -> None:
+    d = np.array([[1.0, 9.0], [9.0, 3.5], [0.2, 8.0]])
+    rows, cols = greedy_pairs(d, gate=3.0)
+    assert rows.tolist() == [2] and cols.tolist() == [0]
+    rows, cols = greedy_pairs(np.zeros((0, 4)), gate=3.0)
+    assert rows.size == 0 and cols.size == 0
+
+
+def test_distance_terms_are_weighted_as_configured() -> None:
+    w = Weights(position=1.0, color=0.0, size=0.0, density=0.0, gate=3.0)
+    grey, unit = np.zeros((1, 3)), np.ones((1, 3))
+    args_t = (np.array([[0.0, 0, 0]]), grey, grey, unit, np.array([0.5]))
+    args_c = (np.array([[3.0, 4, 0], [0, 0, 1]]), np.zeros((2, 3)), np.zeros((2, 3)), np.ones((2, 3)), np.full(2, 0.5))
+    assert np.allclose(distance_matrix(w, *args_t, *args_c), [[5.0, 1.0]])
+    # hue is circular: 0.95 and 0.05 are 0.1 apart
+    w = Weights(position=0.0, color=1.0, size=0.0, density=0.0, gate=3.0)
+    hsl_t, hsl_c = np.array([[0.95, 0.5, 0.5]]), np.array([[0.05, 0.5, 0.5]])
+    d = distance_matrix(w, args_t[0], grey, hsl_t, *args_t[3:], args_t[0], grey, hsl_c, *args_t[3:])
+    assert np.allclose(d, [[0.1]])
+
+
+def test_two_crossing_colours_keep_their_identities() -> None:
+    tracker = new_tracker()
+    red, blue = (0.8, 0.1, 0.1), (0.1, 0.1, 0.8)
+    ids: dict[str, set[int]] = {"red": set(), "blue": set()}
+    for k in range(30):
+        x_red, x_blue = 10.0 + 0.1 * k, 13.0 - 0.1 * k  # they pass each other at k = 15
+        out = step(tracker, k, [cluster(0, (x_red, 2.0, 0.75), rgb=red), cluster(1, (x_blue, 2.3, 0.75), rgb=blue)])
+        for o in out.obstacles:
+            ids["red" if o.color_rgb[0] > 0.5 else "blue"].add(o.id)
+    assert len(ids["red"]) == 1 and len(ids["blue"]) == 1
+
+
+# ------------------------------------------------------------------ queues
+
+
+def test_acceptance_promoted_after_n_frames_then_ghost_then_dropped() -> None:
+    tracker = new_tracker(accept_frames=3, ghost_frames=4)
+    obj = [cluster(0, (10.0, 0.0, 0.75))]
+    states = [[o.state for o in step(tracker, k, obj).obstacles] for k in range(3)]
+    assert states == [["acceptance"], ["acceptance"], ["tracked"]]
+    ghost_states = [[o.state for o in step(tracker, k, []).obstacles] for k in range(3, 9)]
+    assert ghost_states == [["ghost"]] * 4 + [[], []]
+
+
+def test_acceptance_track_missing_one_frame_is_discarded() -> None:
+    tracker = new_tracker(accept_frames=3)
+    step(tracker, 0, [cluster(0, (10.0, 0.0, 0.75))])
+    step(tracker, 1, [cluster(0, (10.0, 0.0, 0.75))])
+    assert step(tracker, 2, []).obstacles == []
+
+
+def test_ghost_revived_keeps_its_id() -> None:
+    tracker = new_tracker(accept_frames=2, ghost_frames=5)
+    obj = [cluster(0, (10.0, 0.0, 0.75))]
+    first = [step(tracker, k, obj) for k in range(3)][-1].obstacles[0]
+    assert step(tracker, 3, []).obstacles[0].state == "ghost"
+    assert step(tracker, 4, []).obstacles[0].state == "ghost"
+    back = step(tracker, 5, obj).obstacles
+    assert [(o.id, o.state) for o in back] == [(first.id, "tracked")]
+
+
+def test_unmatched_cluster_starts_a_new_acceptance_track() -> None:
+    tracker = new_tracker()
+    for k in range(5):
+        step(tracker, k, [cluster(0, (10.0, 0.0, 0.75))])
+    out = step(tracker, 5, [cluster(0, (10.0, 0.0, 0.75)), cluster(1, (20.0, 5.0, 0.75), rgb=(0.1, 0.7, 0.1))])
+    assert sorted(o.state for o in out.obstacles) == ["acceptance", "tracked"]
+
+
+# ------------------------------------------------------------------ Kalman filter and motion
+
+
+def test_batched_filter_matches_filterpy() -> None:
+    rng = np.random.default_rng(3)
+    n, dt, accel, meas = 7, 0.1, np.array([1.0, 1.0, 0.1]), 0.15
+    p0 = kalman.initial_covariance(np.full(3, meas), np.array([5.0, 5.0, 0.3]))
+    starts = rng.normal(size=(n, 3)) * 10
+    x = np.hstack([starts, np.zeros((n, 3))])
+    p = np.broadcast_to(p0, (n, 6, 6)).copy()
+    filters = []
+    for i in range(n):
+        kf = KalmanFilter(dim_x=6, dim_z=3)
+        kf.x = x[i].reshape(6, 1).copy()
+        kf.P = p0.copy()
+        kf.F = kalman.transition(dt)
+        q = np.zeros((6, 6))
+        for axis in range(3):
+            block = Q_discrete_white_noise(dim=2, dt=dt, var=accel[axis] ** 2)
+            q[np.ix_([axis, axis + 3], [axis, axis + 3])] = block
+        kf.Q = q
+        kf.H = kalman.H
+        kf.R = np.eye(3) * meas**2
+        filters.append(kf)
+    assert np.allclose(filters[0].Q, kalman.process_noise(dt, accel))
+    f, q = kalman.transition(dt), kalman.process_noise(dt, accel)
+    for k in range(20):
+        z = starts + np.array([1.0, -0.5, 0.0]) * k * dt + rng.normal(scale=meas, size=(n, 3))
+        x, p = kalman.predict(x, p, f, q)
+        x, p = kalman.update(x, p, z, np.eye(3) * meas**2)
+        for i, kf in enumerate(filters):
+            kf.predict()
+            kf.update(z[i])
+    assert np.allclose(x, np.stack([kf.x.ravel() for kf in filters]), atol=1e-10)
+    assert np.allclose(p, np.stack([kf.P for kf in filters]), atol=1e-12)
+
+
+def test_constant_velocity_target_speed_converges() -> None:
+    rng = np.random.default_rng(1)
+    tracker = new_tracker()
+    velocity = np.array([6.0, -2.0, 0.0])  # 6.3 m/s
+    for k in range(40):
+        centre = np.array([5.0, 4.0, 0.75]) + velocity * k * 0.1 + rng.normal(scale=[0.1, 0.1, 0.03])
+        out = step(tracker, k, [cluster(0, centre, size=(4.0, 1.8, 1.5))])
+    (o,) = out.obstacles
+    assert abs(o.speed - np.linalg.norm(velocity)) < 0.1
+    assert np.allclose(o.velocity, velocity, atol=0.15)
+    assert o.moving and o.state == "tracked"
+
+
+def test_moving_label_needs_a_trustworthy_speed_and_comes_within_five_frames() -> None:
+    rng = np.random.default_rng(2)
+    tracker = new_tracker()
+    labels = []
+    for k in range(12):
+        centre = np.array([8.0, 2.0, 0.9]) + np.array([0.0, 1.5, 0.0]) * k * 0.1 + rng.normal(scale=0.05, size=3)
+        out = step(tracker, k, [cluster(0, centre, size=(0.6, 0.6, 1.8))])  # a walking pedestrian
+        labels.append(out.obstacles[0].moving)
+    assert not labels[0] and not labels[1]  # two frames cannot tell 1.5 m/s from noise
+    assert any(labels[:8])
+
+
+def test_static_object_seen_from_moving_vehicle_never_moving() -> None:
+    rng = np.random.default_rng(4)
+    tracker = new_tracker()
+    parked = np.array([20.0, -3.0, 0.75])
+    for k in range(60):
+        pose = make_pose(rot_z(0.002 * k), [1.0 * k, 0.0, 0.0])  # 10 m/s, slowly turning
+        centre = parked + rng.normal(scale=[0.1, 0.1, 0.05])
+        out = step(tracker, k, [cluster(0, centre, size=(4.0, 1.8, 1.5))], pose=pose)
+        assert not any(o.moving for o in out.obstacles), k
+    (o,) = out.obstacles
+    assert o.speed < 0.5
+    # seen from the vehicle the parked car comes towards it at the vehicle's speed
+    assert np.allclose(o.velocity_rel[:2], (pose[:3, :3].T @ np.array([-10.0, 0.0, 0.0]))[:2], atol=0.6)
+
+
+def test_parked_car_whose_visible_part_grows_stays_stationary() -> None:
+    # driving past: first only the rear is seen, then the side comes into view voxel by voxel and
+    # the centroid slides forward 2 m in 1.6 s (1.25 m/s), while the car stands still.
+    rng = np.random.default_rng(5)
+    tracker = new_tracker()
+    rear = 20.0
+    for k in range(40):
+        visible = min(4.5, 0.5 + EDGE * k)
+        centre = np.array([rear + visible / 2, -3.0, 0.75]) + rng.normal(scale=0.03, size=3)
+        pose = make_pose(np.eye(3), [1.0 * k, 0.0, 0.0])
+        out = step(tracker, k, [cluster(0, centre, size=(visible, 1.8, 1.5))], pose=pose)
+        assert not any(o.moving for o in out.obstacles), k
+
+
+# ------------------------------------------------------------------ bad input
+
+
+def test_new_world_epoch_clears_tracks() -> None:
+    tracker = new_tracker()
+    for k in range(4):
+        step(tracker, k, [cluster(0, (10.0, 0.0, 0.75))])
+    old = {o.id for o in step(tracker, 4, [cluster(0, (10.0, 0.0, 0.75))]).obstacles}
+    out = step(tracker, 5, [cluster(0, (10.0, 0.0, 0.75))], epoch=1)
+    assert [o.state for o in out.obstacles] == ["acceptance"] and out.obstacles[0].id not in old
+    assert out.world_epoch == 1 and tracker.counters["epoch_resets"] == 1
+
+
+def test_nan_centroids_dropped_and_counted() -> None:
+    tracker = new_tracker()
+    bad = cluster(1, (12.0, 0.0, 0.75))
+    bad.centroid = np.array([np.nan, 0.0, 0.75])
+    out = step(tracker, 0, [cluster(0, (10.0, 0.0, 0.75)), bad])
+    assert len(out.obstacles) == 1 and tracker.counters["nan_clusters"] == 1
+    out = step(tracker, 1, [bad])
+    assert out.obstacles == [] and tracker.counters["nan_clusters"] == 2 and tracker.counters["empty_frames"] == 1
+    assert all(np.isfinite(tracker.tracks.x).all() for _ in [0])
+
+
+def test_stale_frames_ignored_and_counted() -> None:
+    tracker = new_tracker()
+    for k in range(4):
+        step(tracker, k, [cluster(0, (10.0 + 0.5 * k, 0.0, 0.75))])
+    before = tracker.tracks.x.copy()
+    out = step(tracker, 2, [cluster(0, (50.0, 9.0, 0.75))])
+    assert tracker.counters["stale_frames"] == 1 and out.frame_id == 2
+    assert np.array_equal(tracker.tracks.x, before) and len(out.obstacles) == 1
+    step(tracker, 3, [])
+    assert tracker.counters["stale_frames"] == 2
+
+
+def test_gap_is_predicted_through_with_the_stamp_difference() -> None:
+    tracker = new_tracker(ghost_frames=5)
+    velocity = np.array([5.0, 0.0, 0.0])
+    for k in range(15):
+        step(tracker, k, [cluster(0, np.array([5.0, 1.0, 0.75]) + velocity * k * 0.1)])
+    ident = step(tracker, 15, [cluster(0, np.array([5.0, 1.0, 0.75]) + velocity * 1.5)]).obstacles[0].id
+    # frames 16..18 never arrive; at frame 19 the car is 2 m further: one association, no new track
+    out = step(tracker, 19, [cluster(0, np.array([5.0, 1.0, 0.75]) + velocity * 1.9)])
+    assert [(o.id, o.state) for o in out.obstacles] == [(ident, "tracked")]
+    assert tracker.counters["gaps"] == 1 and tracker.counters["gap_frames"] == 3
+    assert abs(out.obstacles[0].speed - 5.0) < 0.3
+    # a gap longer than the ghost life retires the unseen track
+    out = step(tracker, 40, [])
+    assert out.obstacles == []
+
+
+def test_invalid_egomotion_predicts_without_correcting() -> None:
+    tracker = new_tracker()
+    for k in range(10):
+        step(tracker, k, [cluster(0, (10.0, 0.0, 0.75))])
+    # an invalid pose puts the cluster 3 m off: kept associated, but not believed
+    out = step(tracker, 10, [cluster(0, (11.5, 0.0, 0.75))], valid=False)
+    (o,) = out.obstacles
+    assert o.state == "tracked" and not o.moving and o.speed < 0.3
+    assert tracker.counters["ego_invalid"] == 1
+
+
+def test_output_survives_the_codec_and_copies_ids() -> None:
+    tracker = new_tracker()
+    pose = make_pose(rot_z(0.3), [4.0, 1.0, 0.0])
+    out = tracker.process(frame(7, [cluster(0, (10.0, 0.0, 0.75))], pose=pose), ego(7, pose))
+    back = decode(encode(out), Obstacles)
+    assert back.frame_id == 7 and back.stamp_ns == 7 * PERIOD_NS and np.allclose(back.ego_pose, pose)
+    (o,) = back.obstacles
+    assert o.state == "acceptance" and np.allclose(o.centroid, (10.0, 0.0, 0.75))
+    assert np.allclose(o.bbox_min, (9.5, -0.5, 0.0)) and np.allclose(o.bbox_max, (10.5, 0.5, 1.5))
+
+
+@pytest.mark.timeout(60)
+def test_fifty_obstacles_tracked_without_identity_swaps() -> None:
+    rng = np.random.default_rng(6)
+    tracker = new_tracker()
+    centres = np.column_stack([rng.uniform(2, 28, 50), rng.uniform(-8, 8, 50), np.full(50, 0.75)])
+    velocities = np.column_stack([rng.uniform(-3, 3, 50), rng.uniform(-1, 1, 50), np.zeros(50)])
+    colours = rng.uniform(0.1, 0.9, (50, 3))
+    ids_of: dict[int, set[int]] = {i: set() for i in range(50)}
+    for k in range(20):
+        pts = centres + velocities * k * 0.1 + rng.normal(scale=0.05, size=(50, 3))
+        out = step(tracker, k, [cluster(i, pts[i], size=(0.8, 0.8, 1.5), rgb=tuple(colours[i])) for i in range(50)])
+        for o in out.obstacles:
+            nearest = int(np.argmin(np.linalg.norm(pts - o.centroid, axis=1)))
+            ids_of[nearest].add(o.id)
+    assert len(out.obstacles) == 50 and all(o.state == "tracked" for o in out.obstacles)
+    assert all(len(v) == 1 for v in ids_of.values())
