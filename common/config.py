@@ -93,6 +93,8 @@ class VoxelConfig:
     keep_frames: int = 0  # 0 = the paper: a voxel without points this frame is removed
     ground: str = "terrain"  # flat (z > ground_clearance) | terrain (height above local road)
     ground_clearance: float = 0.2
+    terrain_slice: float = 1.0  # m of x per slice of the terrain height profile
+    terrain_max_grade: float = 0.15  # steepest road grade (and grade change per slice) followed
 
 
 @dataclass

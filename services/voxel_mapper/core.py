@@ -1,0 +1,97 @@
+"""Steps 3 and 4 of the paper: the world voxel map updated with egomotion, then colour clustering.
+
+``VoxelMapper.process(cloud, ego)`` reads as the paper: follow the world epoch, update the map with
+this frame's points brought into the world (Sect. IV-A), find the road, select the voxels above it
+inside the volume of interest, flood-fill them by colour (Alg. IV-B.1, Eq. 1), aggregate small
+clusters (Alg. IV-B.2), remove noise (Alg. IV-B.3) and describe what is left.
+
+World-state policy: a new ``world_epoch`` resets the map (its world frame is gone). An invalid
+egomotion also restarts the map from this frame alone: its pose is odometry's prediction, good
+enough to place this frame's clusters but not to fuse them with voxels seen under another pose.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from common.config import Config, VolumeConfig
+from common.errors import ConfigError, InputError
+from common.messages import Clusters, EgoMotion, PointCloud
+from services.voxel_mapper.flood_fill import flood_fill, touching_pairs
+from services.voxel_mapper.refinement import aggregate, remove_noise
+from services.voxel_mapper.summary import describe
+from services.voxel_mapper.terrain import FlatGround, TerrainProfile
+from services.voxel_mapper.voxel_map import VoxelMap
+
+Ground = FlatGround | TerrainProfile
+
+
+class VoxelMapper:
+    """Pure core of the voxel_mapper service: PointCloud + EgoMotion -> Clusters."""
+
+    def __init__(self, *, edge: float, volume: VolumeConfig, ground: Ground, epsilon: float,
+                 min_cluster_voxels: int, min_density: float, min_points_per_voxel: int = 1,
+                 keep_frames: int = 0, ground_clearance: float = 0.2) -> None:
+        if edge <= 0.0:
+            raise ConfigError(f"voxel.edge must be > 0, got {edge}")
+        self.map = VoxelMap(edge, keep_frames)
+        self.volume = volume
+        self.ground = ground
+        self.epsilon = epsilon
+        self.min_cluster_voxels = min_cluster_voxels
+        self.min_density = min_density
+        self.min_points = min_points_per_voxel
+        self.clearance = ground_clearance
+        self.epoch: int | None = None
+
+    @classmethod
+    def from_config(cls, cfg: Config) -> VoxelMapper:
+        v, vol = cfg.voxel, cfg.volume
+        if v.ground == "flat":
+            ground: Ground = FlatGround()
+        elif v.ground == "terrain":
+            ground = TerrainProfile(x_min=vol.x_min, x_max=vol.x_max, z_min=vol.z_min - 1.0, z_max=vol.z_max,
+                                    slice_m=v.terrain_slice, max_grade=v.terrain_max_grade)
+        else:
+            raise ConfigError(f"voxel.ground must be 'flat' or 'terrain', got {v.ground!r}")
+        return cls(edge=v.edge, volume=vol, ground=ground, epsilon=v.epsilon,
+                   min_cluster_voxels=v.min_cluster_voxels, min_density=v.min_density,
+                   min_points_per_voxel=v.min_points_per_voxel, keep_frames=v.keep_frames,
+                   ground_clearance=v.ground_clearance)
+
+    def process(self, cloud: PointCloud, ego: EgoMotion) -> Clusters:
+        """Update the map with one frame and cluster the voxels above the road."""
+        points, colors = self._checked(cloud)
+        self._follow_epoch(ego)
+        self.map.integrate(points, colors, ego.pose)
+        self.map.forget_unseen()
+        road = self.ground.fit(points)
+        candidate = self._above_road(road, ego.pose)
+        labels, n_clusters = flood_fill(self.map, candidate, self.epsilon)
+        labels = aggregate(labels, n_clusters, touching_pairs(self.map, labels), self.min_cluster_voxels)
+        labels = remove_noise(labels, self.map.coords, n_clusters, self.min_cluster_voxels, self.min_density)
+        return Clusters(frame_id=cloud.frame_id, stamp_ns=cloud.stamp_ns, clusters=describe(self.map, labels),
+                        voxel_edge=self.map.edge, world_epoch=ego.world_epoch, ego_pose=np.array(ego.pose),
+                        voxel_count=self.map.n)
+
+    @staticmethod
+    def _checked(cloud: PointCloud) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
+        points, colors = np.asarray(cloud.points), np.asarray(cloud.colors)
+        if points.ndim != 2 or points.shape[1] != 3 or colors.shape != points.shape:
+            raise InputError(f"point cloud {cloud.frame_id}: points {points.shape} and colours {colors.shape} "
+                             "must both be Nx3")
+        return points, colors
+
+    def _follow_epoch(self, ego: EgoMotion) -> None:
+        if ego.world_epoch != self.epoch or not ego.valid:
+            self.map.clear()
+        self.epoch = ego.world_epoch
+
+    def _above_road(self, road: Ground, pose: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
+        """Voxels inside the volume of interest and above the road, judged in this vehicle frame."""
+        vol = self.volume
+        local = (self.map.centroids - pose[:3, 3]) @ pose[:3, :3]  # world -> vehicle frame
+        height = road.height(local)
+        return ((self.map.counts >= self.min_points) & (height > self.clearance) & (height <= vol.z_max)
+                & (local[:, 0] >= vol.x_min) & (local[:, 0] <= vol.x_max) & (np.abs(local[:, 1]) <= vol.y_half))

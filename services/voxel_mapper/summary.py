@@ -1,0 +1,62 @@
+"""What each cluster carries out of step 4: voxels, count, colour, box, centroid, density, volume.
+
+Colour mean and variance pool every point of the cluster's voxels (from the per-voxel sums), so a
+voxel seen by many points weighs more than one seen once. The centroid is the mean of the voxels'
+point centroids (each voxel once, so near surfaces, which collect many more points, do not pull
+it). The box spans the voxel centroids grown by half an edge, which follows the surface to within
+a few centimetres where whole voxel cells would add up to an edge on each side.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from common.messages import Cluster
+from services.voxel_mapper.voxel_map import HSL, HSL2, RGB, RGB2, XYZ, VoxelMap
+
+
+def _pooled(sums: np.ndarray, squares: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    mean = sums / counts[:, None]
+    return mean.astype(np.float32), np.maximum(squares / counts[:, None] - mean * mean, 0.0).astype(np.float32)
+
+
+def describe(vmap: VoxelMap, labels: npt.NDArray[np.int32]) -> list[Cluster]:
+    """One Cluster per distinct label >= 0, ids numbered 0.. in order of decreasing size."""
+    slots = np.flatnonzero(labels >= 0)
+    if slots.size == 0:
+        return []
+    lab = labels[slots]
+    order = np.argsort(lab, kind="stable")
+    slots, lab = slots[order], lab[order]
+    starts = np.flatnonzero(np.concatenate(([True], lab[1:] != lab[:-1])))
+    counts = np.diff(np.append(starts, slots.size))
+
+    stats = vmap.stats[slots]
+    coords = vmap.coords[slots]
+    centroids = stats[:, XYZ] / stats[:, 0:1]
+    sums = np.add.reduceat(stats, starts, axis=0)
+    points = sums[:, 0]
+    rgb_mean, rgb_var = _pooled(sums[:, RGB], sums[:, RGB2], points)
+    hsl_mean, hsl_var = _pooled(sums[:, HSL], sums[:, HSL2], points)
+    centre = np.add.reduceat(centroids, starts, axis=0) / counts[:, None]
+    half = 0.5 * vmap.edge
+    box_lo = np.minimum.reduceat(centroids, starts, axis=0) - half
+    box_hi = np.maximum.reduceat(centroids, starts, axis=0) + half
+    cells = np.maximum.reduceat(coords, starts, axis=0) - np.minimum.reduceat(coords, starts, axis=0) + 1
+    dens = counts / np.prod(cells.astype(np.float64), axis=1)
+    volume = counts * vmap.edge**3
+
+    out = []
+    for rank, c in enumerate(np.argsort(-counts, kind="stable")):
+        s = starts[c]
+        out.append(Cluster(
+            id=rank,
+            voxels=np.ascontiguousarray(coords[s:s + counts[c]], dtype=np.int32),
+            voxel_count=int(counts[c]),
+            color_mean_rgb=rgb_mean[c], color_var_rgb=rgb_var[c],
+            color_mean_hsl=hsl_mean[c], color_var_hsl=hsl_var[c],
+            bbox_min=box_lo[c], bbox_max=box_hi[c], centroid=centre[c],
+            density=float(dens[c]), volume=float(volume[c]),
+        ))
+    return out

@@ -1,0 +1,177 @@
+"""The voxel mapper core on hand-built clouds: boxes, roads, grades and overhangs of known shape."""
+
+from __future__ import annotations
+
+import colorsys
+
+import numpy as np
+import pytest
+
+from common.config import Config
+from common.geometry import make_pose, rot_z
+from common.messages import Clusters, EgoMotion, PointCloud, decode, encode
+from services.voxel_mapper import VoxelMapper
+from services.voxel_mapper.colour import hsl_of
+
+RED, BLUE, GREY, GREEN = (200, 40, 30), (30, 50, 190), (110, 110, 105), (40, 190, 60)
+
+
+def box(lo: tuple[float, float, float], hi: tuple[float, float, float], colour: tuple[int, int, int],
+        step: float = 0.04, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Points on the six faces of an axis-aligned box, colour with +-6 levels of noise."""
+    lo_a, hi_a = np.array(lo), np.array(hi)
+    faces = []
+    for axis in range(3):
+        u, v = [a for a in range(3) if a != axis]
+        gu = np.arange(lo_a[u], hi_a[u] + 1e-9, step)
+        gv = np.arange(lo_a[v], hi_a[v] + 1e-9, step)
+        mu, mv = np.meshgrid(gu, gv, indexing="ij")
+        for side in (lo_a[axis], hi_a[axis]):
+            face = np.empty((mu.size, 3))
+            face[:, axis], face[:, u], face[:, v] = side, mu.ravel(), mv.ravel()
+            faces.append(face)
+    pts = np.concatenate(faces)
+    return pts.astype(np.float32), noisy_colour(colour, len(pts), seed)
+
+
+def noisy_colour(colour: tuple[int, int, int], n: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.clip(np.array(colour) + rng.integers(-6, 7, (n, 3)), 0, 255).astype(np.uint8)
+
+
+def road(grade: float = 0.0, step: float = 0.08, x_max: float = 28.7) -> tuple[np.ndarray, np.ndarray]:
+    """A road plane z = grade * x over the volume, with 2 cm of height noise."""
+    xs, ys = np.meshgrid(np.arange(0.0, x_max, step), np.arange(-8.2, 8.2, step), indexing="ij")
+    rng = np.random.default_rng(1)
+    z = grade * xs + rng.normal(0.0, 0.02, xs.shape)
+    pts = np.stack([xs.ravel(), ys.ravel(), z.ravel()], axis=1)
+    return pts.astype(np.float32), noisy_colour(GREY, len(pts), 2)
+
+
+def cloud(*parts: tuple[np.ndarray, np.ndarray], frame_id: int = 0) -> PointCloud:
+    return PointCloud(frame_id=frame_id, stamp_ns=frame_id * 100_000_000,
+                      points=np.concatenate([p for p, _ in parts]), colors=np.concatenate([c for _, c in parts]))
+
+
+def ego(pose: np.ndarray | None = None, frame_id: int = 0, epoch: int = 0, valid: bool = True) -> EgoMotion:
+    return EgoMotion(frame_id=frame_id, stamp_ns=frame_id * 100_000_000, pose=np.eye(4) if pose is None else pose,
+                     valid=valid, world_epoch=epoch)
+
+
+def mapper(**voxel: object) -> VoxelMapper:
+    cfg = Config()
+    for key, value in voxel.items():
+        setattr(cfg.voxel, key, value)
+    return VoxelMapper.from_config(cfg)
+
+
+def test_hsl_matches_colorsys() -> None:
+    rgb = np.random.default_rng(3).integers(0, 256, (200, 3), dtype=np.uint8)
+    ours = hsl_of(rgb)
+    for (r, g, b), (h, s, lum) in zip(rgb / 255.0, ours, strict=True):
+        ch, cl, cs = colorsys.rgb_to_hls(r, g, b)
+        assert (h, s, lum) == pytest.approx((ch, cs, cl), abs=1e-9)
+
+
+def test_touching_boxes_of_different_colours_are_two_clusters() -> None:
+    # Touching in voxels (cells 31 and 32 along x) without sharing a face a camera could not see anyway.
+    out = mapper().process(cloud(road(), box((6, -1, 0), (7.95, 1, 1.5), RED), box((8, -1, 0), (10, 1, 1.5), BLUE)),
+                           ego())
+    assert len(out.clusters) == 2
+    reds = [c for c in out.clusters if c.color_mean_rgb[0] > 0.5]
+    blues = [c for c in out.clusters if c.color_mean_rgb[2] > 0.5]
+    assert len(reds) == 1 and len(blues) == 1
+    assert reds[0].centroid[0] == pytest.approx(7.0, abs=0.3)
+    assert blues[0].centroid[0] == pytest.approx(9.0, abs=0.3)
+
+
+def test_touching_boxes_of_one_colour_are_one_cluster() -> None:
+    out = mapper().process(cloud(road(), box((6, -1, 0), (8, 1, 1.5), RED), box((8, -1, 0), (10, 1, 1.5), RED, seed=5)),
+                           ego())
+    assert len(out.clusters) == 1
+    c = out.clusters[0]
+    assert c.bbox_min[0] == pytest.approx(6.0, abs=0.15) and c.bbox_max[0] == pytest.approx(10.0, abs=0.15)
+    assert c.voxel_count == len(c.voxels)
+    assert c.volume == pytest.approx(c.voxel_count * 0.25**3)
+    assert 0.0 < c.density <= 1.0
+    assert np.all(c.color_var_rgb >= 0) and np.all(c.color_var_rgb < 0.01)
+
+
+def test_lone_noise_voxel_is_removed() -> None:
+    speck = (np.array([[12.1, 3.1, 1.1], [12.15, 3.12, 1.14], [12.2, 3.05, 1.2]], np.float32), noisy_colour(GREEN, 3))
+    out = mapper().process(cloud(road(), box((6, -1, 0), (8, 1, 1.5), RED), speck), ego())
+    assert len(out.clusters) == 1
+    assert out.clusters[0].centroid[0] == pytest.approx(7.0, abs=0.3)
+    assert out.voxel_count > 1000  # the speck and the road are in the map, only not clustered
+
+
+def test_small_cluster_touching_a_big_one_is_merged() -> None:
+    rng = np.random.default_rng(4)
+    patch_pts = (np.array([8.05, 0.05, 1.05]) + rng.random((40, 3)) * 0.15).astype(np.float32)  # one cell
+    alone = mapper(min_cluster_voxels=1).process(cloud(road(), box((6, -1, 0), (8, 1, 1.5), RED),
+                                                       (patch_pts, noisy_colour(GREEN, 40))), ego())
+    assert len(alone.clusters) == 2  # without refinement the green voxel is its own cluster
+    patch = (patch_pts, noisy_colour(GREEN, 40))
+    out = mapper().process(cloud(road(), box((6, -1, 0), (8, 1, 1.5), RED), patch), ego())
+    assert len(out.clusters) == 1
+    assert out.clusters[0].voxel_count == alone.clusters[0].voxel_count + 1
+    assert out.clusters[0].bbox_max[0] > 8.1
+
+
+def test_static_box_stays_fixed_in_the_world_while_the_vehicle_moves() -> None:
+    vm = mapper()
+    world_box = box((10.1, 2.1, 0), (12.1, 3.6, 1.8), RED)  # off the voxel grid
+    seen = []
+    for k in range(4):
+        pose = make_pose(rot_z(0.02 * k), [0.7 * k, 0.1 * k, 0.0])
+        inv = np.linalg.inv(pose)
+        local = (world_box[0] @ inv[:3, :3].T + inv[:3, 3]).astype(np.float32)
+        out = vm.process(cloud(road(), (local, world_box[1]), frame_id=k), ego(pose, frame_id=k))
+        assert len(out.clusters) == 1
+        assert np.array_equal(out.ego_pose, pose)
+        seen.append(out.clusters[0])
+    first = {tuple(v) for v in seen[0].voxels}
+    for c in seen[1:]:
+        assert c.centroid == pytest.approx(seen[0].centroid, abs=0.05)
+        overlap = len(first & {tuple(v) for v in c.voxels}) / len(first)
+        assert overlap > 0.9  # the same world voxels, give or take cells the rotated road clips
+
+
+def test_new_epoch_resets_the_map() -> None:
+    vm = mapper(keep_frames=5)
+    vm.process(cloud(road(), box((6, -1, 0), (8, 1, 1.5), RED)), ego())
+    kept = vm.process(cloud(road(), frame_id=1), ego(frame_id=1))
+    assert len(kept.clusters) == 1  # the decay keeps the unseen box
+    reset = vm.process(cloud(road(), frame_id=2), ego(frame_id=2, epoch=1))
+    assert reset.clusters == [] and reset.world_epoch == 1
+
+
+def test_tilted_road_has_no_obstacles_in_terrain_mode_but_a_box_on_it_is_one() -> None:
+    slope = road(grade=0.06)
+    assert mapper(ground="terrain").process(cloud(slope), ego()).clusters == []
+    assert len(mapper(ground="flat").process(cloud(slope), ego()).clusters) > 0  # what the flat road makes of it
+    z0 = 0.06 * 15.0
+    out = mapper(ground="terrain").process(cloud(slope, box((15, -1, z0), (17, 1, z0 + 1.5), BLUE)), ego())
+    assert len(out.clusters) == 1
+    assert out.clusters[0].centroid[0] == pytest.approx(16.0, abs=0.3)
+
+
+def test_crest_has_no_obstacles_in_terrain_mode() -> None:
+    up, down = road(grade=0.06, x_max=14.0), road(grade=-0.04, x_max=14.7)
+    down_pts = down[0] + np.array([14.0, 0.0, 0.06 * 14.0], np.float32)
+    assert mapper().process(cloud(up, (down_pts, down[1])), ego()).clusters == []
+
+
+def test_overhanging_box_is_one_cluster_spanning_its_height() -> None:
+    out = mapper().process(cloud(road(), box((9, -1.5, 1.5), (11, 1.5, 2.5), GREEN)), ego())
+    assert len(out.clusters) == 1
+    c = out.clusters[0]
+    assert c.bbox_min[2] == pytest.approx(1.5, abs=0.25)
+    assert c.bbox_max[2] == pytest.approx(2.5, abs=0.25)
+
+
+def test_clusters_round_trip_through_the_codec() -> None:
+    out = mapper().process(cloud(road(), box((6, -1, 0), (8, 1, 1.5), RED), frame_id=7), ego(frame_id=7))
+    back = decode(encode(out), Clusters)
+    assert back.frame_id == 7 and back.voxel_edge == 0.25
+    assert np.array_equal(back.clusters[0].voxels, out.clusters[0].voxels)
