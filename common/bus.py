@@ -74,6 +74,10 @@ class Publisher:
         self._pub.put(payload)
         self.sent += 1
 
+    def matched(self) -> bool:
+        """Whether some subscriber is reachable on this key now (a source waits for this before sending)."""
+        return bool(self._pub.matching_status.matching)
+
     def close(self) -> None:
         self._pub.undeclare()
 
@@ -90,7 +94,9 @@ class Received(Generic[M]):
 class _Subscriber(ABC, Generic[M]):
     """Common part: decode in the Zenoh callback, count bad payloads, hand good ones to a buffer."""
 
-    def __init__(self, session: zenoh.Session, key: str, expected: type[M] | None) -> None:
+    def __init__(
+        self, session: zenoh.Session, key: str, expected: type[M] | None, wakeup: threading.Event | None = None
+    ) -> None:
         self.key = key
         self.expected = expected
         self.received = 0
@@ -98,6 +104,9 @@ class _Subscriber(ABC, Generic[M]):
         self.decode_errors = 0
         self.last_error = ""
         self._last_log = 0.0
+        #: set after every delivered message, so one thread can wait on several subscribers at once.
+        self.wakeup = wakeup
+        self._closed = threading.Event()
         self._sub = session.declare_subscriber(key, self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -115,22 +124,31 @@ class _Subscriber(ABC, Generic[M]):
             return
         self.received += 1
         self._push(Received(str(sample.key_expr), msg, time.time_ns()))
+        if self.wakeup is not None:
+            self.wakeup.set()
 
     @abstractmethod
     def _push(self, item: Received[M]) -> None:
         """Hand a decoded message to the buffer (called on Zenoh's delivery thread)."""
 
     def close(self) -> None:
+        self._closed.set()
         self._sub.undeclare()
 
 
 class LatestSubscriber(_Subscriber[M]):
     """Keeps only the newest message; every message replaced before it was taken counts as dropped."""
 
-    def __init__(self, session: zenoh.Session, key: str, expected: type[M] | None = None) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        key: str,
+        expected: type[M] | None = None,
+        wakeup: threading.Event | None = None,
+    ) -> None:
         self._slot: Received[M] | None = None
         self._cond = threading.Condition()
-        super().__init__(session, key, expected)
+        super().__init__(session, key, expected, wakeup)
 
     def _push(self, item: Received[M]) -> None:
         with self._cond:
@@ -151,12 +169,30 @@ class LatestSubscriber(_Subscriber[M]):
 class FifoSubscriber(_Subscriber[M]):
     """A bounded FIFO: when full, the Zenoh delivery thread waits, pushing back on the publisher."""
 
-    def __init__(self, session: zenoh.Session, key: str, expected: type[M] | None = None, depth: int = 8) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        key: str,
+        expected: type[M] | None = None,
+        depth: int = 8,
+        wakeup: threading.Event | None = None,
+    ) -> None:
         self._queue: queue.Queue[Received[M]] = queue.Queue(maxsize=depth)
-        super().__init__(session, key, expected)
+        super().__init__(session, key, expected, wakeup)
 
     def _push(self, item: Received[M]) -> None:
-        self._queue.put(item)
+        # Wait in slices so a consumer that has stopped (closed) never leaves Zenoh's thread stuck.
+        while not self._closed.is_set():
+            try:
+                self._queue.put(item, timeout=0.1)
+                return
+            except queue.Full:
+                continue
+        self.dropped += 1
+
+    def pending(self) -> int:
+        """Messages waiting in the FIFO."""
+        return self._queue.qsize()
 
     def recv(self, timeout_s: float) -> Received[M] | None:
         try:
@@ -165,14 +201,26 @@ class FifoSubscriber(_Subscriber[M]):
             return None
 
 
+QUEUE_POLICIES: tuple[str, ...] = ("newest", "fifo")
+
+
 def subscribe(
-    session: zenoh.Session, key: str, expected: type[M] | None = None, policy: str = "newest", depth: int = 8
+    session: zenoh.Session,
+    key: str,
+    expected: type[M] | None = None,
+    policy: str = "newest",
+    depth: int = 8,
+    wakeup: threading.Event | None = None,
 ) -> LatestSubscriber[M] | FifoSubscriber[M]:
-    """A subscriber with the queue policy a launch spec names: ``newest`` or ``fifo``."""
+    """A subscriber with the queue policy a launch spec names: ``newest`` or ``fifo``.
+
+    ``wakeup`` (optional) is set after each delivered message: a loop reading several inputs waits
+    on that one event instead of polling each subscriber in turn.
+    """
     if policy == "newest":
-        return LatestSubscriber(session, key, expected)
+        return LatestSubscriber(session, key, expected, wakeup)
     if policy == "fifo":
-        return FifoSubscriber(session, key, expected, depth)
+        return FifoSubscriber(session, key, expected, depth, wakeup)
     raise BusError(f"queue policy must be newest or fifo, got {policy!r}")
 
 

@@ -1,0 +1,98 @@
+"""``stereovox run SERVICE``: one service as its own process, on its own Zenoh session.
+
+The configuration is the one typed tree (defaults, then ``--config FILE``, then ``--set``); the
+bus flags (``--connect``, ``--listen``, ``--mode``) are shorthands for ``bus.*`` keys. SIGINT and
+SIGTERM only set a stop event: the service's loop looks at it between timed waits, closes its
+subscribers, publishers and liveliness token, and the process exits 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import inspect
+import logging
+import signal
+import threading
+from types import FrameType, ModuleType
+from typing import Any
+
+from common.bus import QUEUE_POLICIES, open_session
+from common.config import Config, load_config
+from common.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+#: service name -> module exposing ``run(cfg, session, stop, ...)``.
+SERVICES: dict[str, str] = {
+    "stereo_depth": "services.stereo_depth.service",
+    "odometry": "services.odometry.service",
+    "voxel_mapper": "services.voxel_mapper.service",
+    "tracker": "services.tracker.service",
+    "recorder": "services.recorder",
+    "camera_replay": "services.camera_replay",
+}
+
+
+def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--connect/--listen/--mode``: how this process joins the bus (also used by ``topics``)."""
+    parser.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                        help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    parser.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                        help="endpoint to listen on (repeatable; default an ephemeral loopback port)")
+    parser.add_argument("--mode", choices=("peer", "client"), default=None, help="Zenoh mode (default peer)")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("service", choices=sorted(SERVICES), help="which service to run")
+    parser.add_argument("--config", metavar="FILE", help="TOML/YAML configuration file")
+    parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                        help="override one configuration key, e.g. voxel.edge=0.2 (repeatable)")
+    add_bus_arguments(parser)
+    parser.add_argument("--policy", choices=QUEUE_POLICIES, default="newest",
+                        help="input queue: newest (live, drops and counts) or fifo (lockstep, no drops)")
+
+
+def bus_config(args: argparse.Namespace, sets: list[str] | None = None, file: str | None = None) -> Config:
+    """The configuration tree with the bus flags applied on top of file and ``--set``."""
+    cfg = load_config(file, sets or [])
+    if args.connect:
+        cfg.bus.connect = list(args.connect)
+    if args.listen:
+        cfg.bus.listen = list(args.listen)
+    if args.mode:
+        cfg.bus.mode = args.mode
+    return cfg
+
+
+def _entry(module: ModuleType, service: str) -> Any:
+    entry = getattr(module, "run", None)
+    if entry is None or not callable(entry):
+        raise ConfigError(f"service {service!r} ({module.__name__}) has no run(cfg, session, stop)")
+    return entry
+
+
+def stop_on_signals() -> threading.Event:
+    """An event set by SIGINT or SIGTERM, instead of KeyboardInterrupt at an arbitrary point."""
+    stop = threading.Event()
+
+    def handler(signum: int, _frame: FrameType | None) -> None:
+        log.info("signal %s: stopping", signal.Signals(signum).name)
+        stop.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+    return stop
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = bus_config(args, args.sets, args.config)
+    module = importlib.import_module(SERVICES[args.service])
+    entry = _entry(module, args.service)
+    extra = {"policy": args.policy} if "policy" in inspect.signature(entry).parameters else {}
+    stop = stop_on_signals()
+    with open_session(cfg.bus) as session:
+        log.info("%s: joined the bus as %s (listen %s, connect %s)", args.service, cfg.bus.mode,
+                 cfg.bus.listen or "loopback", cfg.bus.connect or "-")
+        entry(cfg, session, stop, **extra)
+    return 0

@@ -1,0 +1,206 @@
+"""The stage shell: joins by frame id, one output per input frame, timing trails, health, real processes."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import threading
+from collections.abc import Iterator
+
+import msgpack
+import numpy as np
+import pytest
+import zenoh
+from conftest import Processes, free_port, stereovox_cmd, wait_for
+
+from common.bus import Publisher, open_session, subscribe, watch_alive
+from common.config import BusConfig, Config
+from common.errors import InputError
+from common.messages import Clusters, EgoMotion, Health, Obstacles, encode, key_for
+from services.join import FrameJoiner
+from services.shell import Stage, StageLoop
+
+
+def ego(frame_id: int, epoch: int = 7) -> EgoMotion:
+    pose = np.eye(4)
+    pose[0, 3] = 0.5 * frame_id
+    return EgoMotion(frame_id=frame_id, stamp_ns=1_000 + frame_id, pose=pose, valid=True, world_epoch=epoch,
+                     timing=[("odometry", 10 * frame_id, 10 * frame_id + 3)])
+
+
+def clusters(frame_id: int, epoch: int = 7) -> Clusters:
+    return Clusters(frame_id=frame_id, stamp_ns=1_000 + frame_id, voxel_edge=0.25, world_epoch=epoch,
+                    timing=[("voxel_mapper", 10 * frame_id + 1, 10 * frame_id + 4)])
+
+
+# ----------------------------------------------------------------------------- the join, as a pure unit
+
+
+def test_joiner_pairs_inputs_by_frame_id_in_any_order() -> None:
+    join = FrameJoiner(["points", "ego"])
+    assert join.add("ego", ego(1)) is None
+    assert join.add("ego", ego(2)) is None
+    assert join.add("points", clusters(3)) is None
+    done = join.add("points", clusters(1))
+    assert done is not None and done["ego"].frame_id == 1 and done["points"].frame_id == 1
+    done = join.add("ego", ego(3))
+    assert done is not None and {m.frame_id for m in done.values()} == {3}
+    # frame 2 can no longer complete (its points were dropped upstream): evicted, and counted
+    assert join.pending() == 0 and join.evicted == 1
+
+
+def test_joiner_stays_bounded_and_counts_evictions() -> None:
+    join = FrameJoiner(["points", "ego"], capacity=4)
+    for k in range(10):
+        assert join.add("ego", ego(k)) is None
+    assert join.pending() == 4 and join.pending("ego") == 4 and join.evicted == 6
+    assert join.add("points", clusters(2)) is None  # evicted long ago: waits as a new partial
+    done = join.add("points", clusters(9))
+    assert done is not None and done["ego"].frame_id == 9
+    with pytest.raises(ValueError, match="unknown input"):
+        join.add("clusters", clusters(1))
+
+
+def test_single_input_frames_complete_at_once() -> None:
+    join = FrameJoiner(["frame"])
+    out = join.add("frame", ego(5))
+    assert out is not None and out["frame"].frame_id == 5 and join.pending() == 0
+
+
+# ----------------------------------------------------------------------------- the shell on a real bus, in-process
+
+
+@pytest.fixture
+def router() -> Iterator[tuple[zenoh.Session, int]]:
+    port = free_port()
+    with open_session(BusConfig(mode="router", listen=[f"tcp/127.0.0.1:{port}"])) as session:
+        yield session, port
+
+
+def trivial_stage() -> Stage:
+    """Clusters + ego -> Obstacles; fails (InputError) on frame 3, which must yield an empty output."""
+
+    def process(c: Clusters, e: EgoMotion) -> tuple[Obstacles]:
+        if c.frame_id == 3:
+            raise InputError("frame 3 is poisoned")
+        return (Obstacles(frame_id=c.frame_id, stamp_ns=c.stamp_ns, world_epoch=e.world_epoch, ego_pose=e.pose),)
+
+    def empty(c: Clusters, e: EgoMotion) -> tuple[Obstacles]:
+        return (Obstacles(frame_id=c.frame_id, stamp_ns=c.stamp_ns, world_epoch=-1),)
+
+    return Stage(name="tracker", inputs={"voxel_mapper/clusters": Clusters, "odometry/ego": EgoMotion},
+                 outputs=("tracker/obstacles",), process=process, empty=empty)
+
+
+def collect(sub: object, n: int, timeout: float, what: str) -> list[object]:
+    """Receive ``n`` messages from a bus subscriber (its ``recv``), failing after ``timeout``."""
+    got: list[object] = []
+
+    def more() -> bool:
+        item = sub.recv(0.1)  # type: ignore[attr-defined]
+        if item is not None:
+            got.append(item.msg)
+        return len(got) >= n
+
+    wait_for(more, timeout, what, interval=0.0)
+    return got
+
+
+@pytest.mark.timeout(60)
+def test_stage_loop_joins_stamps_and_answers_every_frame(router: tuple[zenoh.Session, int]) -> None:
+    session, port = router
+    with open_session(BusConfig(mode="client", connect=[f"tcp/127.0.0.1:{port}"])) as client:
+        loop = StageLoop(trivial_stage(), Config(), client, policy="fifo")
+        out = subscribe(session, key_for("tracker/obstacles"), Obstacles, "fifo", depth=64)
+        pub_c, pub_e = Publisher(session, key_for("voxel_mapper/clusters")), Publisher(session, key_for("odometry/ego"))
+        stop = threading.Event()
+        worker = threading.Thread(target=lambda: [loop.step() for _ in iter(stop.is_set, True)], daemon=True)
+        worker.start()
+        try:
+            wait_for(lambda: pub_c.matched() and pub_e.matched(), 30, "the shell's subscribers")
+            for k in range(8):  # ego first for odd frames, clusters first for even ones
+                pairs = [(pub_e, ego(k)), (pub_c, clusters(k))]
+                for pub, msg in pairs if k % 2 else reversed(pairs):
+                    pub.put(msg)
+            results = collect(out, 8, 30, "eight obstacles")
+        finally:
+            stop.set()
+            worker.join(5)
+            loop.close()
+    assert [m.frame_id for m in results] == list(range(8))  # one output per frame, in order
+    assert [m.world_epoch for m in results] == [7, 7, 7, -1, 7, 7, 7, 7]  # frame 3: the empty output
+    assert loop.health.errors == 1 and "poisoned" in loop.health.last_error
+    for m in results:
+        assert [t[0] for t in m.timing] == ["odometry", "voxel_mapper", "tracker"], m.timing
+        assert m.timing[-1][1] <= m.timing[-1][2]
+    report = loop.health.report()
+    assert (report.frames_in, report.frames_out, report.errors, report.decode_errors) == (16, 8, 1, 0)
+    assert report.detail["join_evicted"] == 0 and report.detail["join_pending"] == 0
+
+
+# ----------------------------------------------------------------------------- real service processes
+
+
+def start_service(processes: Processes, name: str, port: int, *extra: str) -> subprocess.Popen[bytes]:
+    cmd = stereovox_cmd("run", name, "--mode", "client", "--connect", f"tcp/127.0.0.1:{port}", *extra)
+    return processes.start(cmd, name)
+
+
+def alive_set(session: zenoh.Session) -> set[str]:
+    """Services whose liveliness tokens are up, kept current by a subscriber on the session."""
+    alive: set[str] = set()
+    watch_alive(session, "ego", lambda service, up: alive.add(service) if up else alive.discard(service))
+    return alive
+
+
+@pytest.mark.reliability
+@pytest.mark.timeout(120)
+def test_tracker_process_drops_malformed_input_counts_it_and_keeps_answering(
+    router: tuple[zenoh.Session, int], processes: Processes
+) -> None:
+    session, port = router
+    alive = alive_set(session)
+    out = subscribe(session, key_for("tracker/obstacles"), Obstacles, "fifo", depth=64)
+    health = subscribe(session, key_for("health/tracker"), Health, "newest")
+    proc = start_service(processes, "tracker", port, "--policy", "fifo")
+    wait_for(lambda: "tracker" in alive or proc.poll() is not None, 60, "the tracker's liveliness token")
+    assert proc.poll() is None, processes.log(proc)
+    pub_c, pub_e = Publisher(session, key_for("voxel_mapper/clusters")), Publisher(session, key_for("odometry/ego"))
+    wait_for(lambda: pub_c.matched() and pub_e.matched(), 30, "the tracker's subscribers")
+    good = encode(clusters(0))
+    junk = [
+        b"",
+        b"\xc1 not msgpack",
+        good[: len(good) // 2],  # truncated
+        encode(ego(0)),  # a valid message of the wrong type for this key
+        good.replace(b"Clusters", b"Clustery"),  # unknown schema
+        msgpack.packb({"schema": "Clusters", "v": 99, "body": {}}),  # unknown version
+    ]
+    for k in range(6):
+        for bad in junk:
+            pub_c.put(bad)
+        pub_e.put(b"\x93\x01\x02")  # a msgpack array, not an envelope
+        pub_c.put(clusters(k))
+        pub_e.put(ego(k))
+    results = collect(out, 6, 60, "six obstacles despite the junk")
+    assert [m.frame_id for m in results] == list(range(6))
+    assert all(m.timing[-1][0] == "tracker" and m.world_epoch == 7 for m in results)
+    expected_errors = 6 * (len(junk) + 1)
+    latest: list[Health] = []
+
+    def counted() -> bool:
+        item = health.recv(0.2)
+        if item is not None:
+            latest[:] = [item.msg]
+        return bool(latest) and latest[0].decode_errors >= expected_errors and latest[0].frames_out >= 6
+
+    wait_for(counted, 30, "a Health report counting the malformed messages")
+    report = latest[0]
+    assert report.decode_errors == expected_errors and report.frames_in == 12 and report.errors == 0
+    assert report.detail["inputs"][key_for("voxel_mapper/clusters")]["decode_errors"] == 6 * len(junk)
+    assert report.detail["core"]["frames"] == 6  # the real tracker core saw every frame
+    assert proc.poll() is None
+    assert processes.stop(proc, signal.SIGINT) == 0
+    log = processes.log(proc)
+    assert "tracker ready" in log and "malformed" in log
+    wait_for(lambda: "tracker" not in alive, 10, "the liveliness token to go away")
