@@ -130,15 +130,22 @@ class RecorderConfig:
     split_size_mb: float = 0.0  # 0 = one file
     split_duration_s: float = 0.0
     keys: str = "stereovox/**"
+    queue_mb: float = 256.0  # received messages waiting for the disk, at most
+    when_full: str = "drop"  # drop (count, never slow the pipeline) | block (push back, lose nothing)
+    flush_interval_s: float = 1.0  # a SIGKILL loses at most this much (one chunk)
 
 
 @dataclass
 class ReplayConfig:
     """Camera replay."""
 
-    rate: float = 1.0
+    rate: float = 1.0  # 0 = as fast as possible
+    lockstep: bool = False  # frame k+1 only after the tracker reported frame k
     lockstep_timeout_s: float = 10.0
     image_format: str = "raw"  # raw | png | jpeg on the wire
+    topics: list[str] = field(default_factory=lambda: ["camera/stereo", "groundtruth/**"])
+    wait_for: list[str] = field(default_factory=list)  # services whose liveliness to await first
+    wait_timeout_s: float = 60.0
 
 
 @dataclass

@@ -1,0 +1,243 @@
+"""``stereovox replay``: a recording's camera frames and ground truth back onto the bus.
+
+Timing is the recording's (``publish_time``, the capture stamp) scaled by ``--rate``, or none
+(``--max``), or the pipeline's own (``--lockstep``: frame k+1 goes out only once the tracker has
+published Obstacles for frame k; a reply that does not come within ``replay.lockstep_timeout_s``
+is logged, counted in Health and the summary, and replay goes on). Every StereoFrame gets a
+fresh timing trail ``[("camera_replay", t, t)]`` so latencies never depend on when the data was
+recorded; ground truth of the first pass goes out byte for byte as recorded. Before the first
+frame the replay waits for the liveliness tokens of the services it feeds (``--wait-for``; the
+tracker by default in lockstep), instead of sleeping and hoping.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import zenoh
+
+from common.bus import Publisher, declare_alive, open_session, subscribe, watch_alive
+from common.config import Config
+from common.errors import BusError, ConfigError
+from common.messages import IMAGE_FORMATS, Obstacles, StereoFrame, decode, encode, key_for, now_ns, topic_of
+from common.recording import RawRecord, RecordingReader, open_recording, peek_stamp
+from services.replay_clock import Pacer, Renumbering
+from services.service_args import add_bus_arguments, config_from_args, stop_on_signals
+
+log = logging.getLogger(__name__)
+
+CAMERA_TOPIC = "camera/stereo"
+
+
+@dataclass
+class ReplayStats:
+    frames: int = 0
+    other: int = 0  # ground truth and any other replayed message
+    passes: int = 0
+    lockstep_timeouts: int = 0
+    truncated: str = ""
+
+
+def wait_for_services(session: zenoh.Session, cfg: Config, names: list[str], stop: threading.Event) -> None:
+    """Return once every named service's liveliness token is present; BusError after the timeout."""
+    alive: set[str] = set()
+    cond = threading.Condition()
+
+    def on_change(service: str, up: bool) -> None:
+        with cond:
+            (alive.add if up else alive.discard)(service)
+            cond.notify_all()
+
+    watcher = watch_alive(session, cfg.bus.vehicle, on_change)
+    deadline = time.monotonic() + cfg.replay.wait_timeout_s
+    try:
+        with cond:
+            while not set(names) <= alive and not stop.is_set():
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    missing = sorted(set(names) - alive)
+                    raise BusError(
+                        f"waited {cfg.replay.wait_timeout_s:.0f} s for services {missing} to come up "
+                        f"(alive: {sorted(alive)}); is the pipeline running and connected?"
+                    )
+                cond.wait(min(remaining, 0.2))
+    finally:
+        watcher.undeclare()
+
+
+class Replay:
+    """Publishes one recording, pass after pass, with the configured pacing."""
+
+    def __init__(self, cfg: Config, session: zenoh.Session, reader: RecordingReader, stop: threading.Event) -> None:
+        rc = cfg.replay
+        if rc.image_format not in IMAGE_FORMATS:
+            raise ConfigError(f"replay.image_format must be one of {IMAGE_FORMATS}, got {rc.image_format!r}")
+        self.cfg, self.session, self.reader, self.stop = cfg, session, reader, stop
+        self.stats = ReplayStats()
+        self.renumber = Renumbering()
+        self.pacer = Pacer(0.0 if rc.lockstep else rc.rate, stop)
+        self.topics = [zenoh.KeyExpr(t) for t in rc.topics]
+        self.pubs: dict[str, Publisher] = {}
+        self.obstacles = (
+            subscribe(session, key_for("tracker/obstacles", cfg.bus.vehicle), Obstacles, "newest")
+            if rc.lockstep
+            else None
+        )
+        self._pending: int | None = None  # last frame id whose obstacles lockstep still awaits
+        self._done = -1  # highest frame id the tracker reported
+
+    def _wanted(self, topic: str) -> bool:
+        return any(t.includes(zenoh.KeyExpr(topic)) for t in self.topics)
+
+    def run(self, loop: bool, max_frames: int) -> ReplayStats:
+        last_id: int | None = None
+        while not self.stop.is_set():
+            for rec in self.reader.raw():
+                topic = topic_of(rec.key)
+                if self.stop.is_set():
+                    break
+                if not self._wanted(topic):
+                    continue
+                header = peek_stamp(rec.data)
+                frame_id, stamp = self.renumber.apply(*header) if header else (None, rec.publish_time_ns)
+                if max_frames and self.stats.frames >= max_frames and (frame_id is None or frame_id > last_id):
+                    break
+                if topic == CAMERA_TOPIC and frame_id is not None:
+                    self._await_obstacles()
+                    self.pacer.wait(stamp)
+                    self._publish_frame(rec, frame_id, stamp)
+                    last_id = frame_id
+                else:
+                    self.pacer.wait(stamp)
+                    self._publish_other(rec, topic, frame_id, stamp)
+            else:
+                self._end_of_pass()
+                if loop and self.stats.frames:
+                    continue
+            break
+        self._await_obstacles()
+        return self.stats
+
+    def _end_of_pass(self) -> None:
+        self.stats.passes += 1
+        if self.reader.truncated is not None and not self.stats.truncated:
+            self.stats.truncated = str(self.reader.truncated)
+            log.warning("%s; replaying the readable part", self.reader.truncated)
+        self.renumber.next_pass()
+
+    def _publisher(self, topic: str) -> Publisher:
+        pub = self.pubs.get(topic)
+        if pub is None:
+            pub = self.pubs[topic] = Publisher(self.session, key_for(topic, self.cfg.bus.vehicle))
+        return pub
+
+    def _publish_frame(self, rec: RawRecord, frame_id: int, stamp: int) -> None:
+        frame = decode(rec.data, StereoFrame)
+        t = now_ns()
+        frame = dataclasses.replace(
+            frame, frame_id=frame_id, stamp_ns=stamp, timing=[("camera_replay", t, t)],
+            image_format=self.cfg.replay.image_format,
+        )
+        self._publisher(CAMERA_TOPIC).put(encode(frame))
+        self.stats.frames += 1
+        self._pending = frame_id
+
+    def _publish_other(self, rec: RawRecord, topic: str, frame_id: int | None, stamp: int) -> None:
+        data = rec.data
+        if not self.renumber.identity and frame_id is not None:
+            data = encode(dataclasses.replace(decode(data), frame_id=frame_id, stamp_ns=stamp))
+        self._publisher(topic).put(data)
+        self.stats.other += 1
+
+    def _await_obstacles(self) -> None:
+        """Lockstep: block until the tracker has reported the last frame sent, or report a timeout."""
+        if self.obstacles is None or self._pending is None:
+            return
+        frame_id, self._pending = self._pending, None
+        timeout = self.cfg.replay.lockstep_timeout_s
+        deadline = time.monotonic() + timeout
+        while self._done < frame_id and not self.stop.is_set():
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                self.stats.lockstep_timeouts += 1
+                log.warning(
+                    "lockstep: no obstacles for frame %d within %.1f s (%d timeouts so far); going on",
+                    frame_id, timeout, self.stats.lockstep_timeouts,
+                )
+                return
+            item = self.obstacles.recv(min(remaining, 0.1))
+            if item is not None:
+                self._done = max(self._done, item.msg.frame_id)
+
+    def close(self) -> None:
+        for pub in self.pubs.values():
+            pub.close()
+        if self.obstacles is not None:
+            self.obstacles.close()
+
+
+def run_replay(
+    cfg: Config, session: zenoh.Session, stop: threading.Event, path: Path, loop: bool = False, max_frames: int = 0
+) -> ReplayStats:
+    """Replay ``path`` until its end (or ``max_frames`` frames, or ``stop``); prints ready and done lines."""
+    reader = open_recording(path)
+    rc = cfg.replay
+    wait = list(rc.wait_for) or (["tracker"] if rc.lockstep else [])
+    token = declare_alive(session, "camera_replay", cfg.bus.vehicle)
+    replay = Replay(cfg, session, reader, stop)
+    try:
+        if wait:
+            wait_for_services(session, cfg, wait, stop)
+        mode = "lockstep" if rc.lockstep else ("max" if rc.rate <= 0 else f"rate {rc.rate:g}")
+        print(f"camera_replay ready: {path} ({mode}{', loop' if loop else ''})", flush=True)
+        stats = replay.run(loop, max_frames)
+    finally:
+        replay.close()
+        token.undeclare()
+    print(
+        f"replay done: {stats.frames} frames, {stats.other} other messages, {stats.passes} passes, "
+        f"{stats.lockstep_timeouts} lockstep timeouts" + (f"; TRUNCATED: {stats.truncated}" if stats.truncated else ""),
+        flush=True,
+    )
+    return stats
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("recording", type=Path, help="the MCAP file to replay")
+    pace = parser.add_mutually_exclusive_group()
+    pace.add_argument("--rate", type=float, help="speed factor on the recorded timing (default 1)")
+    pace.add_argument("--max", action="store_true", help="as fast as the bus takes it")
+    pace.add_argument("--lockstep", action="store_true", help="frame k+1 only after the tracker reported frame k")
+    parser.add_argument("--loop", action="store_true", help="start again at the end (frame ids keep increasing)")
+    parser.add_argument("--max-frames", type=int, default=0, metavar="N", help="stop after N camera frames")
+    parser.add_argument("--keys", help="comma-separated topics to replay (default camera/stereo,groundtruth/**)")
+    parser.add_argument("--image-format", choices=IMAGE_FORMATS, help="how images travel (default raw)")
+    parser.add_argument("--wait-for", metavar="SERVICE,...", help="liveliness tokens to await before starting")
+    add_bus_arguments(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    keys = [topic_of(k) for k in args.keys.split(",") if k] if args.keys else None
+    cfg = config_from_args(
+        args,
+        {
+            "replay.rate": 0.0 if args.max else args.rate,
+            "replay.lockstep": True if args.lockstep else None,
+            "replay.image_format": args.image_format,
+            "replay.topics": keys,
+            "replay.wait_for": [s for s in args.wait_for.split(",") if s] if args.wait_for else None,
+        },
+    )
+    if cfg.replay.rate < 0:
+        raise ConfigError(f"--rate must be positive, got {cfg.replay.rate}")
+    open_recording(args.recording)  # a missing or non-MCAP file fails before any network setup
+    stop = stop_on_signals()
+    with open_session(cfg.bus) as session:
+        run_replay(cfg, session, stop, args.recording, args.loop, args.max_frames)
+    return 0

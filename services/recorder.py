@@ -1,0 +1,247 @@
+"""``stereovox record``: every bus key under ``stereovox/**`` into MCAP, without slowing the pipeline.
+
+The Zenoh callback only copies the payload and stamps the receive time; a writer thread peeks the
+capture stamp (a few bytes of the msgpack header, never the images), writes the bytes untouched
+and compresses. Between them sits a queue bounded in bytes (``recorder.queue_mb``). When the
+disk cannot keep up and the queue is full, the default (``recorder.when_full = "drop"``) drops
+the message and counts it in Health, because blocking the Zenoh delivery thread would push back
+through BLOCK publishers onto every stage; ``"block"`` makes the recorder lossless for offline
+evaluation runs, at the price of slowing the publishers to the disk's pace.
+
+The open chunk is flushed every ``recorder.flush_interval_s``, so SIGKILL loses at most that
+chunk; SIGINT/SIGTERM drain the queue and write the summary. An unwritable path or a full disk
+stops the recording with an error naming the file; the pipeline, which never waits for the
+recorder in ``drop`` mode, runs on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from common.bus import Publisher, declare_alive, open_session
+from common.config import Config
+from common.errors import ConfigError, RecordingError
+from common.messages import Health, key_for, topic_of
+from common.recording import COMPRESSIONS, RecordingWriter, peek_stamp
+from services.recording_parts import RecordingParts
+from services.service_args import add_bus_arguments, config_from_args, stop_on_signals
+
+log = logging.getLogger(__name__)
+
+Item = tuple[str, bytes, int]  # key, payload, receive time (ns)
+
+
+class ByteQueue:
+    """A FIFO bounded by payload bytes: ``put`` drops (returns False) or waits when it is full."""
+
+    def __init__(self, limit_bytes: int, block: bool) -> None:
+        self._items: collections.deque[Item] = collections.deque()
+        self._cond = threading.Condition()
+        self._limit = limit_bytes
+        self._block = block
+        self._closed = False
+        self.bytes = 0
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def put(self, item: Item) -> bool:
+        size = len(item[1])
+        with self._cond:
+            while self._items and self.bytes + size > self._limit:  # one oversized item always fits
+                if not self._block or self._closed:
+                    return False
+                self._cond.wait(0.1)
+            if self._closed:
+                return False
+            self._items.append(item)
+            self.bytes += size
+            self._cond.notify_all()
+            return True
+
+    def get(self, timeout_s: float) -> Item | None:
+        with self._cond:
+            if not self._items:
+                self._cond.wait(timeout_s)
+            if not self._items:
+                return None
+            item = self._items.popleft()
+            self.bytes -= len(item[1])
+            self._cond.notify_all()
+            return item
+
+    def close(self) -> None:
+        """Refuse everything from now on (the writer has failed)."""
+        with self._cond:
+            self._closed = True
+            self._items.clear()
+            self.bytes = 0
+            self._cond.notify_all()
+
+
+@dataclass
+class RecorderStats:
+    received: int = 0
+    written: int = 0
+    dropped: int = 0
+    bytes_written: int = 0
+
+
+class Recorder:
+    """Subscribes to a key expression and writes what arrives from a thread of its own."""
+
+    def __init__(self, session: zenoh.Session, parts: RecordingParts, keys: str, cfg: Config) -> None:
+        rc = cfg.recorder
+        if rc.when_full not in ("drop", "block"):
+            raise ConfigError(f"recorder.when_full must be drop or block, got {rc.when_full!r}")
+        self.parts = parts
+        self.stats = RecorderStats()
+        self.by_topic: dict[str, int] = {}  # messages written per topic, for Health
+        self.error: RecordingError | None = None
+        self._queue = ByteQueue(int(rc.queue_mb * 1024 * 1024), block=rc.when_full == "block")
+        self._flush_s = rc.flush_interval_s
+        self._draining = threading.Event()
+        self._thread = threading.Thread(target=self._write_loop, name="recorder-writer", daemon=True)
+        self._thread.start()
+        self._sub = session.declare_subscriber(keys, self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        """The hot path: copy out of Zenoh, stamp, enqueue; nothing is decoded here."""
+        received = time.time_ns()
+        self.stats.received += 1
+        if not self._queue.put((str(sample.key_expr), sample.payload.to_bytes(), received)):
+            self.stats.dropped += 1
+
+    def _write_loop(self) -> None:
+        next_flush = time.monotonic() + self._flush_s
+        try:
+            while True:
+                item = self._queue.get(timeout_s=0.1)
+                if item is not None:
+                    key, data, received = item
+                    stamp = peek_stamp(data)
+                    self.parts.write(key, data, received, stamp[1] if stamp else received)
+                    self.stats.written += 1
+                    self.stats.bytes_written += len(data)
+                    topic = topic_of(key)
+                    self.by_topic[topic] = self.by_topic.get(topic, 0) + 1
+                elif self._draining.is_set():
+                    break
+                if time.monotonic() >= next_flush:
+                    self.parts.flush()
+                    next_flush = time.monotonic() + self._flush_s
+            self.parts.close()
+        except OSError as exc:
+            self.error = RecordingError(f"cannot write: {exc.strerror or exc}; recording stopped", str(self.parts.path))
+            self._queue.close()
+            self.parts.abort()
+
+    @property
+    def failed(self) -> bool:
+        return self.error is not None
+
+    def health_detail(self) -> dict[str, Any]:
+        return {
+            "bytes": self.stats.bytes_written,
+            "queue_depth": len(self._queue),
+            "queue_mb": round(self._queue.bytes / 1e6, 3),
+            "file": str(self.parts.path),
+            "files": len(self.parts.paths),
+            "written_by_topic": dict(self.by_topic),
+        }
+
+    def close(self) -> None:
+        """Stop receiving, write what is queued, finish the file."""
+        self._sub.undeclare()
+        self._draining.set()
+        self._thread.join()
+
+
+def _describe(cfg: Config, keys: str) -> Any:
+    def describe(writer: RecordingWriter, part: int) -> None:
+        writer.describe(cfg.to_dict(), {"recorded_keys": keys, "part": part, "recorded_by": "stereovox record"})
+
+    return describe
+
+
+def run_recorder(
+    cfg: Config, session: zenoh.Session, stop: threading.Event, out: Path, keys: str | None = None
+) -> RecorderStats:
+    """Record until ``stop`` is set; raises :class:`RecordingError` naming the file if writing fails.
+
+    Prints one ``recorder ready`` line once subscribed (tests and launchers wait for it) and
+    publishes Health on ``health/recorder`` every ``cfg.health_period_s``.
+    """
+    rc = cfg.recorder
+    keys = keys or rc.keys
+    if rc.compression not in COMPRESSIONS:
+        raise ConfigError(f"recorder.compression must be one of {sorted(COMPRESSIONS)}, got {rc.compression!r}")
+    split_bytes = int(rc.split_size_mb * 1024 * 1024)
+    parts = RecordingParts(out, rc.compression, rc.chunk_size, split_bytes, rc.split_duration_s, _describe(cfg, keys))
+    recorder = Recorder(session, parts, keys, cfg)
+    token = declare_alive(session, "recorder", cfg.bus.vehicle)
+    health = Publisher(session, key_for("health/recorder", cfg.bus.vehicle))
+    print(f"recorder ready: {keys} -> {parts.path}", flush=True)
+    started = time.monotonic()
+    last_bytes, last_t, reports = 0, started, 0
+    try:
+        while not stop.wait(cfg.health_period_s) and not recorder.failed:
+            now, done = time.monotonic(), recorder.stats.bytes_written
+            detail = recorder.health_detail() | {"mb_per_s": round((done - last_bytes) / 1e6 / (now - last_t), 3)}
+            last_bytes, last_t, reports = done, now, reports + 1
+            s = recorder.stats
+            health.put(
+                Health(
+                    frame_id=reports, stamp_ns=time.time_ns(), service="recorder", frames_in=s.received,
+                    frames_out=s.written, dropped=s.dropped, uptime_s=now - started, detail=detail,
+                )
+            )
+    finally:
+        recorder.close()
+        token.undeclare()
+        health.close()
+    if recorder.error is not None:
+        raise recorder.error
+    s = recorder.stats
+    print(
+        f"recorder done: {s.written} messages, {s.bytes_written / 1e6:.1f} MB, {s.dropped} dropped, "
+        f"files: {', '.join(str(p) for p in parts.paths)}",
+        flush=True,
+    )
+    return s
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", required=True, type=Path, help="the MCAP file (FILE_0.mcap, ... when splitting)")
+    parser.add_argument("--keys", help="key expression to record (default recorder.keys: stereovox/**)")
+    parser.add_argument("--compression", choices=sorted(COMPRESSIONS), help="chunk compression (default zstd)")
+    parser.add_argument("--split-size", type=float, metavar="MB", help="start a new file after this many MB")
+    parser.add_argument("--split-duration", type=float, metavar="S", help="start a new file after this many seconds")
+    parser.add_argument("--when-full", choices=("drop", "block"), help="queue full: drop and count, or push back")
+    add_bus_arguments(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = config_from_args(
+        args,
+        {
+            "recorder.compression": args.compression,
+            "recorder.split_size_mb": args.split_size,
+            "recorder.split_duration_s": args.split_duration,
+            "recorder.when_full": args.when_full,
+            "recorder.keys": args.keys,
+        },
+    )
+    stop = stop_on_signals()
+    with open_session(cfg.bus) as session:
+        run_recorder(cfg, session, stop, args.out)
+    return 0

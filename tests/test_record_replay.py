@@ -1,0 +1,271 @@
+"""The recorder and the replay as real processes on 127.0.0.1, around an in-test Zenoh router."""
+
+from __future__ import annotations
+
+import itertools
+import signal
+import subprocess
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+from conftest import Processes, free_port, stereovox_cmd, wait_for
+from fake_recording import CALIB, write_recording
+from mcap.reader import make_reader
+
+from common.bus import Publisher, declare_alive, open_session
+from common.config import BusConfig
+from common.messages import Health, Message, Obstacles, StereoFrame, decode, key_for
+from common.recording import open_recording
+
+pytestmark = pytest.mark.timeout(120)
+
+CAMERA = key_for("camera/stereo")
+GT_KEYS = (key_for("groundtruth/ego"), key_for("groundtruth/objects"))
+
+
+@dataclass
+class Hub:
+    """A router the processes connect to, and a session the test observes the bus through."""
+
+    session: zenoh.Session
+    endpoint: str
+    health: dict[str, Health] = field(default_factory=dict)
+
+    def listen(self, key: str, on_msg: Callable[[str, Message, int], None]) -> zenoh.Subscriber:
+        def handler(sample: zenoh.Sample) -> None:
+            on_msg(str(sample.key_expr), decode(sample.payload.to_bytes()), time.monotonic_ns())
+
+        return self.session.declare_subscriber(key, handler)
+
+    def written(self, topic: str) -> int:
+        """Messages of one topic the recorder reports written (from its Health)."""
+        h = self.health.get("recorder")
+        return int(h.detail.get("written_by_topic", {}).get(topic, 0)) if h else 0
+
+
+@pytest.fixture
+def hub() -> Iterator[Hub]:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with open_session(BusConfig(mode="router", listen=[endpoint])) as session:
+        h = Hub(session, endpoint)
+
+        def on_health(key: str, msg: Message, t: int) -> None:
+            assert isinstance(msg, Health)
+            h.health[msg.service] = msg
+
+        sub = h.listen(key_for("health/*"), on_health)
+        yield h
+        sub.undeclare()
+
+
+def wait_line(processes: Processes, proc: subprocess.Popen[bytes], text: str, timeout: float = 40.0) -> None:
+    def seen() -> bool:
+        if proc.poll() is not None:
+            pytest.fail(f"process exited with {proc.returncode} before printing {text!r}:\n{processes.log(proc)}")
+        return text in processes.log(proc)
+
+    wait_for(seen, timeout, repr(text))
+
+
+def start_recorder(processes: Processes, hub: Hub, out: Path, *extra: str) -> subprocess.Popen[bytes]:
+    cmd = stereovox_cmd("record", "--out", str(out), "--connect", hub.endpoint, "--set", "health_period_s=0.2", *extra)
+    proc = processes.start(cmd, "recorder")
+    wait_line(processes, proc, "recorder ready")
+    return proc
+
+
+def publish_frames(hub: Hub, count: int, size: tuple[int, int] = (48, 64)) -> None:
+    pub = Publisher(hub.session, CAMERA)
+    rng = np.random.default_rng(3)
+    for i in range(count):
+        img = rng.integers(0, 256, (*size, 3), dtype=np.uint8)
+        pub.put(StereoFrame(frame_id=i, stamp_ns=i * 1000, left=img, right=img, calib=CALIB))
+    pub.close()
+
+
+def test_record_replay_record_keeps_every_payload(tmp_path: Path, processes: Processes, hub: Hub) -> None:
+    source, again = tmp_path / "source.mcap", tmp_path / "again.mcap"
+    write_recording(source, 20)
+    recorder = start_recorder(processes, hub, again)
+    replay = processes.start(
+        stereovox_cmd("replay", str(source), "--max", "--wait-for", "recorder", "--connect", hub.endpoint), "replay"
+    )
+    assert replay.wait(60) == 0, processes.log(replay)
+    assert "replay done: 20 frames, 40 other messages" in processes.log(replay)
+    wait_for(lambda: all(hub.written(t) == 20 for t in ("camera/stereo", "groundtruth/ego", "groundtruth/objects")),
+             30, "the recorder to write 20 messages of each key")
+    assert processes.stop(recorder, signal.SIGINT) == 0, processes.log(recorder)
+    assert "recorder done" in processes.log(recorder)
+
+    original, copy = open_recording(source), open_recording(again)
+    for key in GT_KEYS:  # ground truth goes through replay and recorder byte for byte, with its times
+        a, b = list(original.raw([key])), list(copy.raw([key]))
+        assert [r.data for r in a] == [r.data for r in b]
+        assert [r.publish_time_ns for r in a] == [r.publish_time_ns for r in b]
+    replayed = list(copy.raw([CAMERA]))
+    for rec, (_, first) in zip(replayed, original.messages(keys=[CAMERA]), strict=True):
+        second = decode(rec.data, StereoFrame)
+        assert isinstance(first, StereoFrame)
+        assert (second.frame_id, second.stamp_ns) == (first.frame_id, first.stamp_ns)
+        assert rec.publish_time_ns == first.stamp_ns and rec.log_time_ns >= second.timing[0][1]
+        np.testing.assert_array_equal(second.left, first.left)
+        np.testing.assert_array_equal(second.right, first.right)
+        assert second.calib.baseline == first.calib.baseline and second.calib.width == first.calib.width
+        [(stage, start, end)] = second.timing  # a fresh trail, not the recording's
+        assert stage == "camera_replay" and start == end and start > first.stamp_ns
+    # SIGINT finished the file: summary present, configuration stored
+    with open(again, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics is not None and summary.statistics.message_count >= 60
+    assert copy.truncated is None
+    assert copy.config_dict() is not None and copy.config_dict()["recorder"]["compression"] == "zstd"
+
+
+def test_sigkill_loses_at_most_one_chunk(tmp_path: Path, processes: Processes, hub: Hub) -> None:
+    out = tmp_path / "killed.mcap"
+    chunk = 100_000  # frames are ~18.5 KB: at most 6 of them sit in an unfinished chunk
+    recorder = start_recorder(processes, hub, out, "--set", f"recorder.chunk_size={chunk}",
+                              "--set", "recorder.flush_interval_s=1000", "--compression", "lz4")
+    sent = 60
+    publish_frames(hub, sent)
+    wait_for(lambda: hub.written("camera/stereo") == sent, 30, "the recorder to write every frame")
+    assert processes.stop(recorder, signal.SIGKILL) == -signal.SIGKILL
+    reader = open_recording(out)
+    frames = [m.frame_id for _, m in reader.messages(keys=[CAMERA])]
+    per_chunk = chunk // (2 * 48 * 64 * 3) + 1
+    assert sent - per_chunk <= len(frames) <= sent
+    assert frames == list(range(len(frames)))
+    assert reader.truncated is not None  # no summary: SIGKILL gave it no chance
+
+
+def test_unwritable_path_fails_clearly(tmp_path: Path, processes: Processes, hub: Hub) -> None:
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a directory")
+    out = blocker / "run.mcap"
+    proc = processes.start(stereovox_cmd("record", "--out", str(out), "--connect", hub.endpoint), "recorder")
+    assert proc.wait(40) == 2
+    log = processes.log(proc)
+    assert str(out) in log and "cannot write" in log and "Traceback" not in log
+
+
+def test_full_disk_stops_the_recorder_not_the_pipeline(tmp_path: Path, processes: Processes, hub: Hub) -> None:
+    """/dev/full refuses every write with ENOSPC: the recorder must exit naming it; traffic flows on."""
+    recorder = start_recorder(processes, hub, Path("/dev/full"), "--set", "recorder.flush_interval_s=0.2")
+    assert recorder.wait(40) == 2
+    log = processes.log(recorder)
+    assert "/dev/full" in log and "No space left on device" in log and "Traceback" not in log
+    seen: list[int] = []
+    sub = hub.listen(CAMERA, lambda k, m, t: seen.append(m.frame_id))
+    publish_frames(hub, 10)
+    wait_for(lambda: len(seen) == 10, 20, "frames to keep flowing without the recorder")
+    sub.undeclare()
+
+
+class FakeTracker:
+    """Answers every camera frame with Obstacles after a delay, except the frames in ``silent``."""
+
+    def __init__(self, hub: Hub, delay_s: float, silent: set[int]) -> None:
+        self.pub = Publisher(hub.session, key_for("tracker/obstacles"))
+        self.delay_s, self.silent = delay_s, silent
+        self.received: dict[int, int] = {}  # frame id -> when it arrived (monotonic ns)
+        self.replied: dict[int, int] = {}
+        self.sub = hub.listen(CAMERA, self._on_frame)
+        self.token = declare_alive(hub.session, "tracker", "ego")
+
+    def _on_frame(self, key: str, msg: Message, t: int) -> None:
+        self.received[msg.frame_id] = t
+        if msg.frame_id not in self.silent:
+            threading.Timer(self.delay_s, self._reply, (msg,)).start()
+
+    def _reply(self, msg: Message) -> None:
+        self.replied[msg.frame_id] = time.monotonic_ns()
+        self.pub.put(Obstacles(frame_id=msg.frame_id, stamp_ns=msg.stamp_ns))
+
+    def close(self) -> None:
+        self.token.undeclare()
+        self.sub.undeclare()
+
+
+def test_lockstep_waits_for_obstacles_and_reports_a_timeout(
+    tmp_path: Path, processes: Processes, hub: Hub
+) -> None:
+    source = tmp_path / "source.mcap"
+    write_recording(source, 8)
+    replay = processes.start(
+        stereovox_cmd("replay", str(source), "--lockstep", "--connect", hub.endpoint,
+                      "--set", "replay.lockstep_timeout_s=1.5"),
+        "replay",
+    )
+    alive: list[str] = []
+    watcher = hub.session.liveliness().declare_subscriber(key_for("alive/*"), lambda s: alive.append(str(s.key_expr)),
+                                                          history=True)
+    frames_early: list[int] = []
+    early = hub.listen(CAMERA, lambda k, m, t: frames_early.append(m.frame_id))
+    wait_for(lambda: key_for("alive/camera_replay") in alive, 40, "the replay's liveliness token")
+    early.undeclare()
+    assert frames_early == []  # it waits for the tracker instead of publishing into the void
+    tracker = FakeTracker(hub, delay_s=0.15, silent={3})
+    assert replay.wait(60) == 0, processes.log(replay)
+    tracker.close()
+    watcher.undeclare()
+    log = processes.log(replay)
+    assert "no obstacles for frame 3 within 1.5 s" in log and "1 lockstep timeouts" in log
+    assert sorted(tracker.received) == list(range(8))
+    for k in range(7):
+        if k == 3:  # no reply: frame 4 waited out the timeout after frame 3
+            assert tracker.received[4] - tracker.received[3] >= 1.4e9
+        else:  # frame k+1 left only after the reply for frame k
+            assert tracker.received[k + 1] >= tracker.replied[k]
+
+
+def test_loop_keeps_frame_ids_increasing(tmp_path: Path, processes: Processes, hub: Hub) -> None:
+    source = tmp_path / "source.mcap"
+    write_recording(source, 6)
+    got: dict[str, list[tuple[int, int, int]]] = {}
+    sub = hub.listen("stereovox/ego/**", lambda k, m, t: got.setdefault(k, []).append((m.frame_id, m.stamp_ns, t)))
+    token = declare_alive(hub.session, "monitor", "ego")
+    replay = processes.start(
+        stereovox_cmd("replay", str(source), "--rate", "4", "--loop", "--max-frames", "15", "--wait-for", "monitor",
+                      "--connect", hub.endpoint),
+        "replay",
+    )
+    assert replay.wait(60) == 0, processes.log(replay)
+    wait_for(lambda: len(got.get(GT_KEYS[1], [])) == 15, 20, "15 ground-truth frames")
+    sub.undeclare()
+    token.undeclare()
+    for key in (CAMERA, *GT_KEYS):
+        ids = [i for i, _, _ in got[key]]
+        stamps = [s for _, s, _ in got[key]]
+        assert ids == list(range(15)), key
+        assert all(b > a for a, b in itertools.pairwise(stamps)), key
+    # at 4x the recorded 10 Hz, 15 frames cannot go out in less than 14 periods of 25 ms
+    arrivals = [t for _, _, t in got[CAMERA]]
+    assert arrivals[-1] - arrivals[0] >= 0.9 * 14 * 25e6
+    assert "2 passes" in processes.log(replay)  # two whole passes and part of a third
+
+
+def test_truncated_recording_replays_its_readable_part(tmp_path: Path, processes: Processes) -> None:
+    source = tmp_path / "cut.mcap"
+    write_recording(source, 20, chunk_size=30_000)
+    with open(source, "r+b") as f:
+        f.truncate(source.stat().st_size // 2)
+    readable = len(list(open_recording(source).messages(keys=[CAMERA])))
+    replay = processes.start(stereovox_cmd("replay", str(source), "--max"), "replay")
+    assert replay.wait(60) == 0
+    log = processes.log(replay)
+    assert f"replay done: {readable} frames" in log
+    assert "WARNING" in log and str(source) in log and "at byte" in log and "TRUNCATED" in log
+
+
+def test_not_mcap_is_named_and_exits_2(tmp_path: Path) -> None:
+    bogus = tmp_path / "bogus.mcap"
+    bogus.write_text("these are notes, not a recording")
+    proc = subprocess.run(stereovox_cmd("replay", str(bogus)), capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert str(bogus) in proc.stderr and "not an MCAP file" in proc.stderr
