@@ -48,21 +48,33 @@ class VolumeConfig:
 
 @dataclass
 class StereoConfig:
-    """Semi-global matching and reprojection (step 1)."""
+    """Semi-global matching and reprojection (step 1); defaults measured on KITTI raw and Middlebury.
 
-    num_disparities: int = 128
+    Two-level scheme: a half-resolution pass covers the whole range down to ``min_depth_m`` and
+    gives the right-view disparity for the left-right check; the full-resolution pass covers the
+    first ``fine_disparities`` (far range, where a pixel of disparity is worth the most metres).
+    """
+
+    num_disparities: int = 0  # 0 = from the frame's calibration: fx * baseline / min_depth_m
+    min_depth_m: float = 2.0  # nearest obstacle the search range must reach
+    fine_disparities: int = 64  # full-resolution range; beyond it the half-resolution pass measures
     block_size: int = 3
-    p1_factor: int = 8
-    p2_factor: int = 32
-    uniqueness: int = 10
+    p1_factor: int = 16  # P1 = p1_factor * channels * block_size^2
+    p2_factor: int = 64
+    uniqueness: int = 0  # full-resolution pass (the left-right check does the rejecting)
+    coarse_uniqueness: int = 15  # half-resolution pass, whose pixels also fill holes
     speckle_window: int = 100
     speckle_range: int = 2
-    disp12_max_diff: int = 1
+    lr_check: str = "coarse"  # coarse (right view at half resolution) | full | off
+    lr_max_diff_px: float = 1.0  # pixels of the coarser of the two disparity maps compared
+    fill_from_coarse: bool = True  # holes of the fine pass take the checked half-resolution value
     pre_filter_cap: int = 63
     mode: str = "3way"  # 3way | sgbm | hh | hh4
-    fill_left_border: bool = True
+    color_matching: bool = False  # False = match grey images (measured better and faster)
+    fill_left_border: bool = True  # pad on the left so the first columns get a disparity too
     decimation: int = 1  # keep every n-th point in x and y
     min_points_depth_m: float = 0.5
+    below_volume_m: float = 1.0  # keep points this far below volume.z_min: the road for the mapper
 
 
 @dataclass

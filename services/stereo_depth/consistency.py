@@ -1,0 +1,36 @@
+"""Left-right consistency: a left pixel keeps its disparity only if the right view agrees.
+
+Occluded pixels (seen by the left camera only) and mismatches in repetitive or blank texture
+fail this test; leaving them out is what keeps the points honest (the truth says "unknown",
+not "guess the background").
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from services.stereo_depth.sgbm import DisparityMap
+
+
+def left_right_check(left_disp: DisparityMap, right_disp: DisparityMap, max_diff: float) -> DisparityMap:
+    """NaN where the right view's disparity at ``x - d`` differs by more than ``max_diff`` (a new array)."""
+    height, width = left_disp.shape
+    map_x = np.arange(width, dtype=np.float32)[None, :] - np.nan_to_num(left_disp, nan=-1.0e6)
+    map_y = np.broadcast_to(np.arange(height, dtype=np.float32)[:, None], (height, width))
+    seen = cv2.remap(
+        right_disp,
+        map_x,
+        np.ascontiguousarray(map_y),
+        cv2.INTER_NEAREST,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=float("nan"),
+    )  # off the image (and invalid pixels, sent far away) read NaN, which never agrees
+    agree = np.abs(seen - left_disp) <= max_diff
+    return np.where(agree, left_disp, np.float32(np.nan)).astype(np.float32, copy=False)
+
+
+def upsample(disp: DisparityMap, shape: tuple[int, int], factor: float) -> DisparityMap:
+    """A coarse disparity at full resolution: nearest neighbour (no blending across edges or NaN)."""
+    full = cv2.resize(disp, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
+    return (full * np.float32(factor)).astype(np.float32, copy=False)

@@ -1,0 +1,86 @@
+"""Step 1 of the paper: dense disparity by semi-global matching, then coloured 3D points.
+
+``process`` validates the frame, matches it with the two-level SGM of ``matcher.py``, and
+reprojects the disparity into the vehicle frame cropped to the volume of interest. The disparity
+image is always returned (evaluation and monitors need it), with NaN wherever no honest value
+exists. A blank pair (all black, all white) is not an error: it gives an empty cloud and sets
+``last_degenerate`` so the bus shell can count it.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import TypeVar
+
+import numpy as np
+
+from common.config import Config, StereoConfig, VolumeConfig
+from common.errors import ConfigError
+from common.messages import Calibration, Disparity, PointCloud, StereoFrame
+from services.stereo_depth.matcher import MultiResolutionMatcher
+from services.stereo_depth.reproject import Colors, Points, Reprojector, VolumeCrop
+from services.stereo_depth.sgbm import DisparityMap, round_up_16
+from services.stereo_depth.validation import check_frame, is_textureless
+
+T = TypeVar("T")
+
+
+class StereoDepth:
+    """Stereo pair in, (PointCloud, Disparity) out; matchers are built once per search range."""
+
+    def __init__(self, stereo: StereoConfig, volume: VolumeConfig) -> None:
+        if stereo.min_depth_m <= 0 or stereo.min_points_depth_m <= 0:
+            raise ConfigError("stereo.min_depth_m and stereo.min_points_depth_m must be > 0")
+        if stereo.num_disparities < 0 or stereo.decimation < 1:
+            raise ConfigError("stereo.num_disparities must be >= 0 (0 = from calibration), decimation >= 1")
+        self.cfg = stereo
+        crop = VolumeCrop.from_config(volume, stereo.below_volume_m)
+        self.reprojector = Reprojector(crop, stereo.min_points_depth_m, stereo.decimation)
+        self._matchers: dict[int, MultiResolutionMatcher] = {}
+        self.last_degenerate = False
+        self.last_timings_ms: dict[str, float] = {}
+        MultiResolutionMatcher.for_range(stereo, round_up_16(stereo.num_disparities or 64))  # fail fast on bad config
+
+    @classmethod
+    def from_config(cls, cfg: Config) -> StereoDepth:
+        return cls(cfg.stereo, cfg.volume)
+
+    def process(self, frame: StereoFrame) -> tuple[PointCloud, Disparity]:
+        check_frame(frame)
+        self.last_timings_ms = {}
+        self.last_degenerate = is_textureless(frame.left) or is_textureless(frame.right)
+        if self.last_degenerate:
+            disparity = np.full(frame.left.shape[:2], np.nan, dtype=np.float32)
+        else:
+            disparity = self._timed("match", lambda: self._matcher(frame.calib).match(frame.left, frame.right))
+            self.last_degenerate = not bool(np.isfinite(disparity).any())
+        points, colors = self._timed("reproject", lambda: self.reprojector.points(disparity, frame.left, frame.calib))
+        return self._messages(frame, points, colors, disparity)
+
+    def search_range(self, calib: Calibration) -> int:
+        """Full-resolution disparities to search: down to ``min_depth_m`` unless fixed in config."""
+        if self.cfg.num_disparities:
+            return round_up_16(self.cfg.num_disparities)
+        reach = calib.fx * calib.baseline / self.cfg.min_depth_m
+        return round_up_16(min(reach, calib.width))
+
+    def _matcher(self, calib: Calibration) -> MultiResolutionMatcher:
+        disparities = self.search_range(calib)
+        if disparities not in self._matchers:
+            self._matchers[disparities] = MultiResolutionMatcher.for_range(self.cfg, disparities)
+        return self._matchers[disparities]
+
+    def _timed(self, stage: str, work: Callable[[], T]) -> T:
+        start = time.perf_counter()
+        result = work()
+        self.last_timings_ms[stage] = (time.perf_counter() - start) * 1000.0
+        return result
+
+    @staticmethod
+    def _messages(
+        frame: StereoFrame, points: Points, colors: Colors, disparity: DisparityMap
+    ) -> tuple[PointCloud, Disparity]:
+        cloud = PointCloud(frame_id=frame.frame_id, stamp_ns=frame.stamp_ns, points=points, colors=colors)
+        disp = Disparity(frame_id=frame.frame_id, stamp_ns=frame.stamp_ns, disparity=disparity, calib=frame.calib)
+        return cloud, disp

@@ -1,0 +1,184 @@
+"""Stereo depth core (step 1) on pairs whose geometry the test builds, and on Middlebury."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+import pytest
+from conftest import shared_path
+
+from common.config import Config, load_config
+from common.errors import CalibrationError, InputError
+from common.evaluation.stereo import d1_frame
+from common.geometry import camera_to_vehicle
+from common.messages import Calibration, StereoFrame
+from services.stereo_depth import StereoDepth
+
+WIDTH, HEIGHT = 320, 240
+FX, CX, CY, BASELINE, CAMERA_HEIGHT = 300.0, 160.0, 120.0, 0.4, 1.5
+PLANE_DEPTH, BOX_DEPTH = 8.0, 4.0  # disparities 15 and 30 px
+BOX = (slice(80, 160), slice(150, 230))  # rows, left-image columns of the box's front face
+
+
+def _texture(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
+    """Blob texture with detail at several scales, like a real surface (not per-pixel noise)."""
+    out = np.zeros((height, width, 3), np.float32)
+    for cell, weight in ((2, 0.5), (6, 0.3), (16, 0.2)):
+        coarse = rng.uniform(0, 255, (height // cell + 2, width // cell + 2, 3)).astype(np.float32)
+        out += weight * cv2.resize(coarse, None, fx=cell, fy=cell, interpolation=cv2.INTER_LINEAR)[:height, :width]
+    return out.clip(0, 255).astype(np.uint8)
+
+
+def _calib(**changes: float) -> Calibration:
+    calib = Calibration(
+        fx=FX, fy=FX, cx=CX, cy=CY, baseline=BASELINE, width=WIDTH, height=HEIGHT,
+        cam_to_vehicle=camera_to_vehicle(CAMERA_HEIGHT),
+    )  # fmt: skip
+    return dataclasses.replace(calib, **changes)
+
+
+def _scene(seed: int = 0) -> StereoFrame:
+    """A fronto-parallel textured wall at 8 m and a textured box face at 4 m, seen by both cameras.
+
+    A surface at disparity d seen at left column u appears at right column u - d; the box hides
+    the wall in both views, at different columns (so each view has its own occlusions).
+    """
+    rng = np.random.default_rng(seed)
+    d_wall, d_box = round(FX * BASELINE / PLANE_DEPTH), round(FX * BASELINE / BOX_DEPTH)
+    wall = _texture(rng, HEIGHT, WIDTH + d_wall)  # indexed by left-image column
+    box = _texture(rng, HEIGHT, WIDTH + d_box)
+    left, right = wall[:, :WIDTH].copy(), wall[:, d_wall : d_wall + WIDTH].copy()
+    rows, cols = BOX
+    left[rows, cols] = box[rows, cols]
+    right[rows, cols.start - d_box : cols.stop - d_box] = box[rows, cols]
+    return StereoFrame(frame_id=7, stamp_ns=123, left=left, right=right, calib=_calib())
+
+
+def _core(**stereo: object) -> StereoDepth:
+    return StereoDepth.from_config(load_config(sets=[f"stereo.{k}={v}" for k, v in stereo.items()]))
+
+
+def _vehicle_point(u: float, v: float, depth: float) -> np.ndarray:
+    """Where a pixel at a camera depth lies in the vehicle frame of this rig (no pitch)."""
+    return np.array([depth, -(u - CX) * depth / FX, CAMERA_HEIGHT - (v - CY) * depth / FX])
+
+
+def test_known_surface_point_within_one_percent_of_depth() -> None:
+    cloud, disp = _core().process(_scene())
+    assert (cloud.frame_id, cloud.stamp_ns, disp.frame_id, disp.stamp_ns) == (7, 123, 7, 123)
+    assert disp.disparity.dtype == np.float32 and disp.disparity.shape == (HEIGHT, WIDTH)
+    u, v = 190, 120  # centre of the box face
+    for uu, vv, depth in ((u, v, BOX_DEPTH), (60, 200, PLANE_DEPTH), (290, 100, PLANE_DEPTH)):
+        measured = FX * BASELINE / disp.disparity[vv, uu]
+        assert abs(measured - depth) < 0.01 * depth, (uu, vv, measured)
+        expected = _vehicle_point(uu, vv, depth)
+        nearest = np.min(np.linalg.norm(cloud.points - expected.astype(np.float32), axis=1))
+        assert nearest < 0.01 * depth, (uu, vv, nearest)
+    assert cloud.points.dtype == np.float32 and cloud.colors.dtype == np.uint8
+    assert np.isfinite(disp.disparity).mean() > 0.9
+    assert len(cloud.points) == len(cloud.colors) > 0.5 * WIDTH * HEIGHT  # the wall's top is above z_max
+
+
+def test_colours_are_the_left_image_pixels() -> None:
+    frame = _scene()
+    cloud, disp = _core().process(frame)
+    u, v = 190, 120
+    depth = FX * BASELINE / disp.disparity[v, u]
+    index = np.argmin(np.linalg.norm(cloud.points - _vehicle_point(u, v, depth).astype(np.float32), axis=1))
+    assert np.array_equal(cloud.colors[index], frame.left[v, u])
+
+
+def test_fronto_parallel_wall_comes_out_flat() -> None:
+    cloud, _ = _core().process(_scene())
+    wall = cloud.points[cloud.points[:, 0] > 6.0]  # the box is at 4 m
+    assert len(wall) > 0.5 * WIDTH * HEIGHT
+    assert abs(np.median(wall[:, 0]) - PLANE_DEPTH) < 0.01 * PLANE_DEPTH
+    assert np.std(wall[:, 0]) < 0.01 * PLANE_DEPTH  # a sloped or wavy plane would spread
+    good = np.abs(wall[:, 0] - PLANE_DEPTH) < 0.02 * PLANE_DEPTH
+    assert good.mean() > 0.97
+
+
+def test_points_outside_the_volume_are_cropped_but_the_road_band_is_kept() -> None:
+    cfg = Config()
+    cfg.volume = dataclasses.replace(cfg.volume, x_max=6.0, y_half=1.0, z_min=1.0, z_max=2.5)
+    cfg.stereo.below_volume_m = 0.5
+    cloud, disp = StereoDepth.from_config(cfg).process(_scene())
+    pts = cloud.points
+    assert len(pts) > 1000  # the box face survives
+    assert pts[:, 0].max() <= 6.0 and np.abs(pts[:, 1]).max() <= 1.0
+    assert pts[:, 2].min() >= 0.5 and pts[:, 2].max() <= 2.5
+    assert np.any(pts[:, 2] < 1.0)  # points below z_min (down to z_min - below) stay for the mapper
+    assert np.isfinite(disp.disparity).sum() > len(pts)  # the disparity image is never cropped
+
+
+def test_decimation_keeps_every_nth_pixel() -> None:
+    full, _ = _core().process(_scene())
+    sparse, _ = _core(decimation=2).process(_scene())
+    assert 0.2 * len(full.points) < len(sparse.points) < 0.3 * len(full.points)
+
+
+def test_full_resolution_left_right_check_also_works() -> None:
+    _, disp = _core(lr_check="full", fill_from_coarse="false").process(_scene())
+    box = disp.disparity[BOX]
+    assert np.nanmedian(box) == pytest.approx(FX * BASELINE / BOX_DEPTH, abs=0.3)
+    # the wall strip just left of the box in the left image is hidden from the right camera
+    occluded = disp.disparity[BOX[0], 140:150]
+    assert np.isnan(occluded).mean() > 0.8
+
+
+@pytest.mark.parametrize(
+    ("change", "error"),
+    [
+        ({"right": np.zeros((HEIGHT, WIDTH - 2, 3), np.uint8)}, InputError),
+        ({"left": np.zeros((HEIGHT, WIDTH), np.uint8)}, InputError),
+        ({"left": np.zeros((HEIGHT, WIDTH, 4), np.uint8), "right": np.zeros((HEIGHT, WIDTH, 4), np.uint8)}, InputError),
+        ({"left": np.zeros((HEIGHT, WIDTH, 3), np.float32)}, InputError),
+        ({"calib": _calib(baseline=0.0)}, CalibrationError),
+        ({"calib": _calib(baseline=float("nan"))}, CalibrationError),
+        ({"calib": _calib(fx=0.0)}, CalibrationError),
+        ({"calib": _calib(fy=float("nan"))}, CalibrationError),
+        ({"calib": _calib(width=640)}, CalibrationError),
+    ],
+)
+def test_bad_input_raises_a_clear_error(change: dict[str, object], error: type[Exception]) -> None:
+    frame = dataclasses.replace(_scene(), **change)
+    with pytest.raises(error) as info:
+        _core().process(frame)
+    assert len(str(info.value)) > 20
+
+
+@pytest.mark.parametrize("value", [0, 255])
+def test_blank_pair_gives_an_empty_cloud_and_then_recovers(value: int) -> None:
+    core = _core()
+    blank = np.full((HEIGHT, WIDTH, 3), value, np.uint8)
+    cloud, disp = core.process(dataclasses.replace(_scene(), left=blank, right=blank.copy()))
+    assert core.last_degenerate
+    assert cloud.points.shape == (0, 3) and cloud.colors.shape == (0, 3)
+    assert disp.disparity.shape == (HEIGHT, WIDTH) and np.isnan(disp.disparity).all()
+    cloud, _ = core.process(_scene())
+    assert not core.last_degenerate and len(cloud.points) > 1000
+
+
+def test_search_range_follows_the_calibration() -> None:
+    core = _core()
+    assert core.search_range(_calib()) == 64  # 300 px * 0.4 m / 2 m = 60 -> 64
+    assert core.search_range(_calib(fx=721.5, width=1242, height=375)) == 160
+    assert _core(num_disparities=100).search_range(_calib()) == 112
+
+
+@pytest.mark.timeout(120)
+def test_middlebury_cones_and_teddy() -> None:
+    """Measured 3.1 % D1-est and 87 % density (11-12 % of these pixels are occluded)."""
+    core = _core(num_disparities=64, lr_check="full", fill_from_coarse="false")
+    for scene in ("cones", "teddy"):
+        folder = shared_path("data", "middlebury", scene)
+        left, right = (cv2.cvtColor(cv2.imread(str(folder / n)), cv2.COLOR_BGR2RGB) for n in ("im2.png", "im6.png"))
+        truth = cv2.imread(str(folder / "disp2.png"), cv2.IMREAD_UNCHANGED).astype(np.float32) / 4.0
+        truth[truth == 0] = np.nan
+        calib = Calibration(fx=1000.0, fy=1000.0, cx=225.0, cy=187.0, baseline=0.1, width=450, height=375)
+        _, disp = core.process(StereoFrame(frame_id=0, stamp_ns=0, left=left, right=right, calib=calib))
+        scores = d1_frame(disp.disparity, truth)
+        assert scores["d1_est_pct"] is not None and scores["d1_est_pct"] < 4.5, scores
+        assert scores["density_pct"] is not None and scores["density_pct"] > 83.0, scores
