@@ -23,6 +23,7 @@ from common.evaluation.inputs import RunInputs, read_inputs
 from common.evaluation.matching import FrameMatch, detection_in_vehicle, match, truth_in_vehicle
 from common.evaluation.odometry import odometry_errors
 from common.evaluation.segmentation import segmentation_figures
+from common.evaluation.velocity import fit_velocities
 from common.geometry import invert
 from common.messages import EgoMotion
 
@@ -64,7 +65,7 @@ def matched_frames(run: RunInputs) -> list[FrameMatch]:
             []
             if obstacles is None
             else [
-                detection_in_vehicle(o, np.asarray(obstacles.ego_pose), run.calib, gt.dontcare)
+                detection_in_vehicle(o, np.asarray(obstacles.ego_pose), run.volume, run.calib, gt.dontcare)
                 for o in obstacles.obstacles
                 if o.state == "tracked"
             ]
@@ -130,7 +131,16 @@ def obstacle_figures(run: RunInputs, ev: Evaluation) -> dict[str, Any]:
     if not run.truth:
         ev.notes.append("obstacles, segmentation: no groundtruth/objects (no ground truth evaluates to nulls)")
         return out
+    source = str(run.info.get("source", "synthetic"))
+    if source != "synthetic":
+        rate = float(run.info.get("frame_rate_hz", 10.0))
+        refitted = fit_velocities(run.truth, rate)
+        ev.notes.append(f"{source}: {refitted} true velocities refitted from positions over +-5 frames")
     frames = matched_frames(run)
+    if not run.true_poses:
+        ev.notes.append("no groundtruth/ego: ground-truth objects taken as already in the vehicle frame")
+    if run.calib is None:
+        ev.notes.append("no calibration: DontCare regions cannot be applied")
     if run.clusters:
         pairs = [(f.truths, run.clusters[f.frame_id]) for f in frames if f.frame_id in run.clusters]
         out["segmentation"] = segmentation_figures(pairs, run.gt_complete)

@@ -56,7 +56,7 @@ class DetectionView:
     centroid: F64
     velocity: F64
     moving: bool
-    dontcare: bool  # its centroid projects into a DontCare region
+    ignored: bool  # outside the volume (x, y) or projecting into a DontCare region, if unmatched
 
 
 @dataclass
@@ -99,6 +99,11 @@ def in_volume(point: F64, volume: VolumeConfig) -> bool:
     return volume.x_min <= x <= volume.x_max and abs(y) <= volume.y_half and volume.z_min <= z <= volume.z_max
 
 
+def in_footprint(point: F64, volume: VolumeConfig) -> bool:
+    """Inside the volume seen from above."""
+    return volume.x_min <= float(point[0]) <= volume.x_max and abs(float(point[1])) <= volume.y_half
+
+
 def truth_in_vehicle(obj: GroundTruthObject, true_pose: F64, volume: VolumeConfig) -> TruthView:
     """A world-frame object seen from the vehicle's true pose."""
     to_vehicle = invert(true_pose)
@@ -129,9 +134,17 @@ def in_dontcare(point: F64, calib: Calibration | None, boxes: npt.NDArray[np.flo
 
 
 def detection_in_vehicle(
-    obs: Obstacle, est_pose: F64, calib: Calibration | None, dontcare: npt.NDArray[np.floating]
+    obs: Obstacle,
+    est_pose: F64,
+    volume: VolumeConfig,
+    calib: Calibration | None,
+    dontcare: npt.NDArray[np.floating],
 ) -> DetectionView:
-    """A world-frame obstacle seen from the pose the pipeline estimated for that frame."""
+    """A world-frame obstacle seen from the pose the pipeline estimated for that frame.
+
+    Only x and y decide whether it is outside the volume: a centroid's height depends on which
+    part of an object the cameras saw, its place on the ground does not.
+    """
     to_vehicle = invert(est_pose)
     centroid = to_vehicle[:3, :3] @ np.asarray(obs.centroid, dtype=np.float64) + to_vehicle[:3, 3]
     velocity = to_vehicle[:3, :3] @ np.asarray(obs.velocity, dtype=np.float64)
@@ -140,7 +153,7 @@ def detection_in_vehicle(
         centroid=centroid,
         velocity=velocity,
         moving=bool(obs.moving),
-        dontcare=in_dontcare(centroid, calib, dontcare),
+        ignored=not in_footprint(centroid, volume) or in_dontcare(centroid, calib, dontcare),
     )
 
 

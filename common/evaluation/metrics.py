@@ -71,7 +71,7 @@ class Tally:
         for d, det in enumerate(frame.detections):
             truth = frame.truth_of(d)
             if truth is None:
-                if not det.dontcare:
+                if not det.ignored:
                     self.phantoms += 1
                     self.fp += det.moving
                 continue
