@@ -55,7 +55,10 @@ def summarise(value: Any, depth: int = 0) -> str:
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         if depth >= 2:
             return type(value).__name__
-        inner = " ".join(f"{f.name}={summarise(getattr(value, f.name), depth + 1)}" for f in dataclasses.fields(value))
+        inner = " ".join(
+            f"{f.name}={_trail(value.timing) if f.name == 'timing' else summarise(getattr(value, f.name), depth + 1)}"
+            for f in dataclasses.fields(value)
+        )
         return f"{type(value).__name__}({inner})" if depth else inner
     if isinstance(value, (list, tuple)):
         if len(value) > 3:
@@ -67,6 +70,11 @@ def summarise(value: Any, depth: int = 0) -> str:
     if isinstance(value, float):
         return f"{value:.4g}"
     return repr(value)
+
+
+def _trail(timing: list[tuple[str, int, int]]) -> str:
+    """A timing trail as each stage's duration: ``[camera_replay 0.0ms, stereo_depth 84.2ms]``."""
+    return "[" + ", ".join(f"{stage} {(end - start) / 1e6:.1f}ms" for stage, start, end in timing) + "]"
 
 
 def schema_of(payload: bytes) -> str:
@@ -135,7 +143,7 @@ def echo(tap: _Tap, stop: threading.Event, count: int, duration: float) -> None:
     for key, payload, _ in tap.each(stop, count, duration):
         try:
             msg = decode(payload)
-            line = f"{key} {msg.schema_id()} frame={msg.frame_id} {summarise(msg)}"
+            line = f"{key} {msg.schema_id()} {summarise(msg)}"
         except DecodeError as exc:
             line = f"{key} <undecodable: {exc}>"
         print(line if len(line) <= MAX_LINE else line[: MAX_LINE - 3] + "...", flush=True)
