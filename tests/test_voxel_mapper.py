@@ -175,3 +175,11 @@ def test_clusters_round_trip_through_the_codec() -> None:
     back = decode(encode(out), Clusters)
     assert back.frame_id == 7 and back.voxel_edge == 0.25
     assert np.array_equal(back.clusters[0].voxels, out.clusters[0].voxels)
+
+
+def test_invalid_egomotion_restarts_the_map_from_that_frame() -> None:
+    vm = mapper(keep_frames=5)
+    vm.process(cloud(road(), box((6, -1, 0), (8, 1, 1.5), RED)), ego())
+    out = vm.process(cloud(road(), frame_id=1), ego(frame_id=1, valid=False))
+    assert out.clusters == []  # the box kept by the decay is not fused under an unreliable pose
+    assert out.voxel_count == mapper().process(cloud(road()), ego()).voxel_count

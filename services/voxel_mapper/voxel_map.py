@@ -69,13 +69,34 @@ def _rebuild(keys: I64, n: int, table_keys: I64, table_slots: npt.NDArray[np.int
         table_slots[h] = s
 
 
+@numba.njit(cache=True, inline="always")
+def _probe_or_add(key: int, n: int, limit: int, keys: I64, stats: F64, table_keys: I64,
+                  table_slots: npt.NDArray[np.int32], shift: int) -> int:
+    """Slot of ``key``; a new voxel gets slot ``n``; -1 when the map must grow first."""
+    mask = table_keys.shape[0] - 1
+    h = bucket(key, shift)
+    while True:
+        s = table_slots[h]
+        if s == EMPTY:
+            if n >= limit:
+                return -1
+            table_slots[h] = n
+            table_keys[h] = key
+            keys[n] = key
+            stats[n, :] = 0.0
+            return n
+        if table_keys[h] == key:
+            return s
+        h = (h + 1) & mask
+
+
 @numba.njit(cache=True)
 def _insert(points: npt.NDArray[np.float32], colors: npt.NDArray[np.uint8], rot: F64, trans: F64,
             inv_edge: float, start: int, n: int, keys: I64, stats: F64, last_seen: I64, frame: int,
             table_keys: I64, table_slots: npt.NDArray[np.int32], shift: int) -> tuple[int, int]:
     """Add points[start:] to the map; stops early (returning where) when the table is half full."""
-    mask = table_keys.shape[0] - 1
     limit = min(keys.shape[0], table_keys.shape[0] // 2)
+    last_key, last_slot = -1, -1
     for p in range(start, points.shape[0]):
         x, y, z = np.float64(points[p, 0]), np.float64(points[p, 1]), np.float64(points[p, 2])
         wx = rot[0, 0] * x + rot[0, 1] * y + rot[0, 2] * z + trans[0]
@@ -85,22 +106,15 @@ def _insert(points: npt.NDArray[np.float32], colors: npt.NDArray[np.uint8], rot:
         if not (abs(fi) < OFFSET and abs(fj) < OFFSET and abs(fk) < OFFSET):
             continue  # NaN or beyond +-2^20 voxels from the world origin
         key = pack(np.int64(fi), np.int64(fj), np.int64(fk))
-        h = bucket(key, shift)
-        while True:
-            s = table_slots[h]
-            if s == EMPTY:
-                if n >= limit:
-                    return n, p
-                s = n
+        if key == last_key:  # neighbouring pixels often share a voxel: skip the probe
+            s = last_slot
+        else:
+            s = _probe_or_add(key, n, limit, keys, stats, table_keys, table_slots, shift)
+            if s < 0:
+                return n, p
+            if s == n:
                 n += 1
-                table_slots[h] = s
-                table_keys[h] = key
-                keys[s] = key
-                stats[s, :] = 0.0
-                break
-            if table_keys[h] == key:
-                break
-            h = (h + 1) & mask
+            last_key, last_slot = key, s
         r, g, b = colors[p, 0] / 255.0, colors[p, 1] / 255.0, colors[p, 2] / 255.0
         hue, sat, light = rgb_to_hsl(r, g, b)
         st = stats[s]
