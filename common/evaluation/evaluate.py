@@ -164,8 +164,10 @@ def obstacle_figures(run: RunInputs, ev: Evaluation) -> dict[str, Any]:
     out["moving_tracks"] = metrics.moving_track_figures(frames)
     out["stationary_tracks"] = metrics.stationary_track_figures(frames)
     out["id_switches"] = metrics.id_switches(frames)
-    if out["speed"] is None and tally.frames:
+    if tally.frames and out["speed"] is None:
         ev.notes.append("speed: no true-positive moving pairs")
+    if tally.frames and out["stationary"] is None:
+        ev.notes.append("stationary: no counted stationary object after warm-up and grace")
     return out
 
 
