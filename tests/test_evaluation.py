@@ -464,3 +464,14 @@ def test_unmatched_detection_outside_the_volume_counts_nowhere(tmp_path: Path) -
     r = evaluate_recording(write_run(tmp_path / "run.mcap", extra=extra))
     assert r["moving"]["fp"] == 0
     assert r["obstacles"]["phantoms_per_frame"] == 0.0
+
+
+def test_partial_scores_what_a_cut_recording_holds(tmp_path: Path) -> None:
+    data = write_run(tmp_path / "run.mcap").read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.8)])
+    cmd = stereovox_cmd("evaluate", str(cut), "--partial", "--json")
+    out = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert "ends early" in out.stderr and str(cut) in out.stderr
+    assert json.loads(out.stdout.strip().splitlines()[-1])["frames"] > 0
