@@ -269,3 +269,40 @@ def test_not_mcap_is_named_and_exits_2(tmp_path: Path) -> None:
     proc = subprocess.run(stereovox_cmd("replay", str(bogus)), capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
     assert str(bogus) in proc.stderr and "not an MCAP file" in proc.stderr
+
+
+def test_split_by_size_names_parts_and_keeps_every_message(tmp_path: Path, processes: Processes, hub: Hub) -> None:
+    out = tmp_path / "run.mcap"
+    recorder = start_recorder(processes, hub, out, "--split-size", "0.2", "--set", "recorder.chunk_size=50000",
+                              "--compression", "none", "--mode", "peer")
+    publish_frames(hub, 40)  # ~0.75 MB of frames: four parts of 0.2 MB (plus at most a chunk each)
+    wait_for(lambda: hub.written("camera/stereo") == 40, 30, "the recorder to write every frame")
+    assert processes.stop(recorder, signal.SIGINT) == 0, processes.log(recorder)
+    parts = sorted(tmp_path.glob("run_*.mcap"), key=lambda p: int(p.stem.split("_")[1]))
+    assert not out.exists() and len(parts) >= 3
+    assert [p.name for p in parts] == [f"run_{i}.mcap" for i in range(len(parts))]
+    ids: list[int] = []
+    for part in parts:
+        reader = open_recording(part)
+        ids += [m.frame_id for _, m in reader.messages(keys=[CAMERA])]
+        assert reader.truncated is None and reader.config_dict() is not None  # each part is complete
+    assert ids == list(range(40))
+    assert all(p.stat().st_size < 0.2 * 1024 * 1024 + 2 * 50_000 for p in parts)
+
+
+def test_split_by_duration_starts_new_parts(tmp_path: Path, processes: Processes, hub: Hub) -> None:
+    out = tmp_path / "timed.mcap"
+    recorder = start_recorder(processes, hub, out, "--split-duration", "0.3")
+    pub = Publisher(hub.session, CAMERA)
+    sent = 0
+    while hub.health.get("recorder") is None or hub.health["recorder"].detail["files"] < 3:
+        assert sent < 500, "no third part after 500 frames"
+        img = np.full((48, 64, 3), sent % 256, dtype=np.uint8)
+        pub.put(StereoFrame(frame_id=sent, stamp_ns=sent, left=img, right=img, calib=CALIB))
+        sent += 1
+        wait_for(lambda n=sent: hub.written("camera/stereo") == n, 20, f"frame {sent} written")
+    pub.close()
+    assert processes.stop(recorder, signal.SIGINT) == 0, processes.log(recorder)
+    parts = [tmp_path / f"timed_{i}.mcap" for i in range(3)]
+    ids = [m.frame_id for p in parts for _, m in open_recording(p).messages(keys=[CAMERA])]
+    assert ids == list(range(sent))
