@@ -19,7 +19,7 @@ from conftest import REPO, stereovox_cmd
 from common.config import VolumeConfig
 from common.evaluation.evaluate import KEYS, evaluate_recording
 from common.evaluation.inputs import ClusterBox, FrameClusters
-from common.evaluation.matching import TruthView, truth_in_vehicle
+from common.evaluation.matching import DetectionView, TruthView, match, truth_in_vehicle
 from common.evaluation.segmentation import segmentation_figures
 from common.evaluation.velocity import fit_velocities
 from common.geometry import camera_to_vehicle, invert, make_pose
@@ -475,3 +475,21 @@ def test_partial_scores_what_a_cut_recording_holds(tmp_path: Path) -> None:
     assert out.returncode == 0, out.stderr
     assert "ends early" in out.stderr and str(cut) in out.stderr
     assert json.loads(out.stdout.strip().splitlines()[-1])["frames"] > 0
+
+
+def detection_view(oid: int, x: float, y: float, moving: bool = False) -> DetectionView:
+    return DetectionView(oid, np.array([x, y, 0.7]), np.zeros(3), moving, ignored=False)
+
+
+def test_matching_is_one_to_one_within_the_grown_box() -> None:
+    truths = [truth_view(1, 10.0, 0.0), truth_view(2, 10.0, 2.4)]
+    dets = [
+        detection_view(10, 10.1, 1.25),  # inside both grown boxes, a little nearer object 2
+        detection_view(11, 10.0, 2.6),  # object 2
+        detection_view(12, 12.45, 0.0),  # within 0.5 m of object 1's front (x 12.0)
+        detection_view(13, 12.6, 5.0),  # near nothing
+    ]
+    # the assignment keeps 11 on object 2 (it fits nowhere else) and gives 10 to object 1
+    assert match(dets[:2], truths) == {0: 0, 1: 1}
+    assert match(dets[2:], truths) == {0: 0}
+    assert match([], truths) == {} and match(dets, []) == {}
