@@ -355,7 +355,9 @@ def _pack_array(arr: NDArray) -> dict[str, Any]:
     arr = np.ascontiguousarray(arr)
     if arr.dtype.name not in DTYPES:
         raise DecodeError(f"dtype {arr.dtype.name} cannot be sent; allowed: {sorted(DTYPES)}")
-    return {_ND: True, "dtype": arr.dtype.name, "shape": list(arr.shape), "data": memoryview(arr).cast("B")}
+    # a flat byte view: memoryview.cast refuses arrays with a zero in their shape (an empty cloud)
+    data = memoryview(arr.reshape(-1).view(np.uint8))
+    return {_ND: True, "dtype": arr.dtype.name, "shape": list(arr.shape), "data": data}
 
 
 def _pack_image(arr: NDArray, fmt: str) -> Any:
@@ -425,6 +427,41 @@ def _unpack_array(value: Any, where: str, dtype: str | None, shape: tuple[int | 
     return np.frombuffer(data, dtype=name).reshape(dims)
 
 
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: JPEG start-of-frame markers (baseline, progressive, lossless, arithmetic): they carry the size.
+_JPEG_SOF = frozenset({0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF})
+
+
+def _encoded_size(data: bytes, fmt: str, where: str) -> tuple[int, int]:
+    """Width and height from a PNG or JPEG header, read before decoding.
+
+    A few hundred bytes of PNG can declare a 40000 x 40000 image: decoding first would allocate
+    gigabytes, so the declared size is checked against the array limit before OpenCV sees it.
+    """
+    if fmt == "png":
+        if len(data) < 24 or not data.startswith(_PNG_SIGNATURE) or data[12:16] != b"IHDR":
+            raise DecodeError(f"{where}: data is not png (no PNG signature and IHDR header)")
+        return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    if not data.startswith(b"\xff\xd8"):
+        raise DecodeError(f"{where}: data is not jpeg (no start-of-image marker)")
+    i = 2
+    while i + 4 <= len(data):
+        if data[i] != 0xFF:
+            break
+        marker = data[i + 1]
+        if marker == 0xFF:  # fill byte
+            i += 1
+            continue
+        if marker in (0x01, *range(0xD0, 0xD8)):  # markers without a length
+            i += 2
+            continue
+        length = int.from_bytes(data[i + 2 : i + 4], "big")
+        if marker in _JPEG_SOF and i + 9 <= len(data):
+            return int.from_bytes(data[i + 7 : i + 9], "big"), int.from_bytes(data[i + 5 : i + 7], "big")
+        i += 2 + length
+    raise DecodeError(f"{where}: jpeg data has no start-of-frame header with the image size")
+
+
 def _unpack_image(value: Any, where: str) -> NDArray:
     if isinstance(value, dict) and _IMG in value:
         data = value.get("data")
@@ -432,6 +469,11 @@ def _unpack_image(value: Any, where: str) -> NDArray:
             raise DecodeError(f"{where}: bad encoded image")
         if len(data) > MAX_ARRAY_BYTES:
             raise DecodeError(f"{where}: encoded image of {len(data)} bytes over the limit")
+        width, height = _encoded_size(bytes(data), value[_IMG], where)
+        if width * height * 3 > MAX_ARRAY_BYTES:
+            raise DecodeError(
+                f"{where}: {value[_IMG]} declares {width}x{height} pixels, over the limit of {MAX_ARRAY_BYTES} bytes"
+            )
         img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
         if img is None or img.ndim != 3 or img.shape[2] != 3:
             raise DecodeError(f"{where}: {value[_IMG]} data does not decode to a colour image")
@@ -532,7 +574,7 @@ def decode(data: bytes | bytearray | memoryview, expected: type[M] | None = None
     cls = SCHEMAS.get(schema) if isinstance(schema, str) else None
     if cls is None:
         raise DecodeError(f"unknown schema {schema!r}; known: {sorted(SCHEMAS)}")
-    if version != cls.VERSION:
+    if isinstance(version, bool) or version != cls.VERSION:
         raise DecodeError(f"{schema} version {version!r}, this build reads version {cls.VERSION}")
     if expected is not None and cls is not expected:
         raise DecodeError(f"got {schema} where {expected.SCHEMA} was expected")
