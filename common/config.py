@@ -83,13 +83,24 @@ class OdometryConfig:
 
     max_features: int = 2000
     fast_threshold: int = 20
-    match_radius_px: float = 200.0
+    feature_cell_px: int = 16  # corners are capped per grid cell so they cover the image
+    features_per_cell: int = 4
+    match_radius_px: float = 200.0  # temporal search window without a motion prior
+    predicted_radius_px: float = 30.0  # temporal search window around the predicted position
+    coarse_features: int = 400  # strongest corners per image for the wide search without a prior
+    coarse_cell_px: int = 24  # at most one of them per cell of this size
+    row_tolerance_px: float = 1.0  # rectified epipolar constraint for stereo matches
+    bucket_px: int = 50  # circle matches kept per bucket for the motion estimate
+    bucket_matches: int = 8
+    subpixel_window: int = 11  # Lucas-Kanade refinement window (pixels)
     ransac_iterations: int = 200
     ransac_threshold_px: float = 1.5
+    symmetric: bool = True  # refine on forward AND backward reprojection (cancels depth bias)
     min_inliers: int = 20
     max_disparity: float = 256.0
     min_disparity: float = 1.0
     max_lost_frames: int = 5  # predicted frames bridged before the world is re-anchored
+    seed: int = 0  # RANSAC sampling, so a run is repeatable
     fuse_ins: bool = False
 
 
