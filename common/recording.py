@@ -25,6 +25,7 @@ from typing import IO, Any
 import mcap.writer
 import msgpack
 import zstandard
+from mcap.reader import make_reader
 from mcap.records import Channel, Metadata, Schema
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader
@@ -318,11 +319,28 @@ class RecordingReader:
         return {m.frame_id: m for _, m in self.messages(topics=[topic])}
 
     def metadata(self) -> dict[str, dict[str, str]]:
-        """Every metadata record, by name (reads the file once if not read yet)."""
+        """Every metadata record, by name.
+
+        From the summary's metadata index when the file has one (no chunk is decompressed, so a
+        multi-gigabyte recording answers at once); otherwise by reading the file through once.
+        """
+        if self._metadata is None:
+            self._metadata = self._indexed_metadata()
         if self._metadata is None:
             for _ in self.raw(keys=()):
                 pass
         return dict(self._metadata or {})
+
+    def _indexed_metadata(self) -> dict[str, dict[str, str]] | None:
+        try:
+            with open(self.path, "rb") as f:
+                reader = make_reader(f)
+                summary = reader.get_summary()
+                if summary is None or not summary.metadata_indexes:
+                    return None
+                return {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+        except Exception:  # no footer, a damaged summary: the streaming path copes and reports
+            return None
 
     def info(self) -> dict[str, Any]:
         """The recording's own facts (``stereovox.info``), JSON values decoded."""

@@ -31,7 +31,7 @@ from common.bus import Publisher, declare_alive, open_session
 from common.config import Config
 from common.errors import ConfigError, RecordingError
 from common.messages import Health, key_for, topic_of
-from common.recording import COMPRESSIONS, RecordingWriter, peek_stamp
+from common.recording import COMPRESSIONS, RecordingWriter, open_recording, peek_stamp
 from services.recording_parts import RecordingParts
 from services.service_args import add_bus_arguments, config_from_args, stop_on_signals
 
@@ -166,27 +166,36 @@ class Recorder:
         self._thread.join()
 
 
-def _describe(cfg: Config, keys: str) -> Any:
+def _describe(cfg: Config, keys: str, info: dict[str, Any]) -> Any:
     def describe(writer: RecordingWriter, part: int) -> None:
-        writer.describe(cfg.to_dict(), {"recorded_keys": keys, "part": part, "recorded_by": "stereovox record"})
+        facts = info | {"recorded_keys": keys, "part": part, "recorded_by": "stereovox record"}
+        writer.describe(cfg.to_dict(), facts)
 
     return describe
 
 
 def run_recorder(
-    cfg: Config, session: zenoh.Session, stop: threading.Event, out: Path, keys: str | None = None
+    cfg: Config,
+    session: zenoh.Session,
+    stop: threading.Event,
+    out: Path,
+    keys: str | None = None,
+    info: dict[str, Any] | None = None,
 ) -> RecorderStats:
     """Record until ``stop`` is set; raises :class:`RecordingError` naming the file if writing fails.
 
-    Prints one ``recorder ready`` line once subscribed (tests and launchers wait for it) and
-    publishes Health on ``health/recorder`` every ``cfg.health_period_s``.
+    ``info`` becomes each file's ``stereovox.info`` (with the recorder's own facts added): pass
+    the replayed recording's facts (``--info-from``) so evaluation of the run knows the source,
+    calibration and frame rate. Prints one ``recorder ready`` line once subscribed (tests and
+    launchers wait for it) and publishes Health on ``health/recorder`` every ``cfg.health_period_s``.
     """
     rc = cfg.recorder
     keys = keys or rc.keys
     if rc.compression not in COMPRESSIONS:
         raise ConfigError(f"recorder.compression must be one of {sorted(COMPRESSIONS)}, got {rc.compression!r}")
     split_bytes = int(rc.split_size_mb * 1024 * 1024)
-    parts = RecordingParts(out, rc.compression, rc.chunk_size, split_bytes, rc.split_duration_s, _describe(cfg, keys))
+    describe = _describe(cfg, keys, info or {})
+    parts = RecordingParts(out, rc.compression, rc.chunk_size, split_bytes, rc.split_duration_s, describe)
     recorder = Recorder(session, parts, keys, cfg)
     token = declare_alive(session, "recorder", cfg.bus.vehicle)
     health = Publisher(session, key_for("health/recorder", cfg.bus.vehicle))
@@ -227,6 +236,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--split-size", type=float, metavar="MB", help="start a new file after this many MB")
     parser.add_argument("--split-duration", type=float, metavar="S", help="start a new file after this many seconds")
     parser.add_argument("--when-full", choices=("drop", "block"), help="queue full: drop and count, or push back")
+    parser.add_argument("--info-from", type=Path, metavar="RECORDING",
+                        help="copy this recording's facts (source, calib, frame rate...) into the metadata")
     add_bus_arguments(parser)
 
 
@@ -241,7 +252,8 @@ def run(args: argparse.Namespace) -> int:
             "recorder.keys": args.keys,
         },
     )
+    info = open_recording(args.info_from).info() if args.info_from else None
     stop = stop_on_signals()
     with open_session(cfg.bus) as session:
-        run_recorder(cfg, session, stop, args.out)
+        run_recorder(cfg, session, stop, args.out, info=info)
     return 0

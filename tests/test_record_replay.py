@@ -92,7 +92,7 @@ def publish_frames(hub: Hub, count: int, size: tuple[int, int] = (48, 64)) -> No
 def test_record_replay_record_keeps_every_payload(tmp_path: Path, processes: Processes, hub: Hub) -> None:
     source, again = tmp_path / "source.mcap", tmp_path / "again.mcap"
     write_recording(source, 20)
-    recorder = start_recorder(processes, hub, again)
+    recorder = start_recorder(processes, hub, again, "--info-from", str(source))
     replay = processes.start(
         stereovox_cmd("replay", str(source), "--max", "--wait-for", "recorder", "--connect", hub.endpoint), "replay"
     )
@@ -125,6 +125,8 @@ def test_record_replay_record_keeps_every_payload(tmp_path: Path, processes: Pro
     assert summary is not None and summary.statistics is not None and summary.statistics.message_count >= 60
     assert copy.truncated is None
     assert copy.config_dict() is not None and copy.config_dict()["recorder"]["compression"] == "zstd"
+    assert copy.info() == original.info() | {"recorded_keys": "stereovox/**", "part": 0,
+                                             "recorded_by": "stereovox record"}
 
 
 def test_sigkill_loses_at_most_one_chunk(tmp_path: Path, processes: Processes, hub: Hub) -> None:

@@ -56,11 +56,13 @@ def test_file_without_summary_reads_every_flushed_message(tmp_path: Path) -> Non
     """A recorder killed after its last flush: no summary, every message still there."""
     path = tmp_path / "killed.mcap"
     w = RecordingWriter(path, compression="zstd")
+    w.describe({"bus": {"vehicle": "ego"}}, {"source": "synthetic", "frames": 10})
     for i in range(10):
         w.write(key_for("groundtruth/ego"), ground_truth(i)[0])
     w.flush()
     w.abort()  # what SIGKILL leaves: no DataEnd, no summary, no footer
     reader = open_recording(path)
+    assert reader.info() == {"source": "synthetic", "frames": 10}  # no summary index: found by streaming
     assert [m.frame_id for _, m in reader.messages()] == list(range(10))
     assert reader.truncated is not None and str(path) in str(reader.truncated)
     with open(path, "rb") as f, pytest.raises(Exception):  # noqa: B017 - the seeking reader needs the summary
