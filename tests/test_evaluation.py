@@ -493,3 +493,18 @@ def test_matching_is_one_to_one_within_the_grown_box() -> None:
     assert match(dets[:2], truths) == {0: 0, 1: 1}
     assert match(dets[2:], truths) == {0: 0}
     assert match([], truths) == {} and match(dets, []) == {}
+
+
+def test_a_second_piece_of_an_object_is_no_phantom_but_a_moving_one_is_a_false_positive(tmp_path: Path) -> None:
+    def pieces(k: int) -> list[Obstacle]:
+        return [
+            # world frame (the estimated pose is the true one here): the front of the parked car
+            # and the rear of car A
+            obstacle(80, np.array([26.5, 4.3, 0.5]), np.zeros(3), moving=False),
+            obstacle(81, np.array([10.0 + 1.5 * k - 1.8, 0.2, 0.5]), np.array([15.0, 0, 0]), moving=True),
+        ]
+
+    r = evaluate_recording(write_run(tmp_path / "run.mcap", extra=pieces))
+    assert r["obstacles"] == {"precision": 1.0, "phantoms_per_frame": 0.0}
+    assert (r["moving"]["tp"], r["moving"]["fp"], r["moving"]["fn"]) == (10, 10, 0)
+    assert r["speed"]["pairs"] == 10

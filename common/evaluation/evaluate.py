@@ -20,7 +20,7 @@ import numpy.typing as npt
 
 from common.evaluation import latency, metrics
 from common.evaluation.inputs import RunInputs, read_inputs
-from common.evaluation.matching import FrameMatch, detection_in_vehicle, match, truth_in_vehicle
+from common.evaluation.matching import FrameMatch, detection_in_vehicle, frame_match, truth_in_vehicle
 from common.evaluation.odometry import odometry_errors
 from common.evaluation.segmentation import segmentation_figures
 from common.evaluation.velocity import fit_velocities
@@ -70,7 +70,7 @@ def matched_frames(run: RunInputs) -> list[FrameMatch]:
                 if o.state == "tracked"
             ]
         )
-        frames.append(FrameMatch(fid, truths, detections, match(detections, truths)))
+        frames.append(frame_match(fid, truths, detections))
     return frames
 
 

@@ -9,7 +9,7 @@ unmatched however the assignment would like to use it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -67,6 +67,7 @@ class FrameMatch:
     truths: list[TruthView]
     detections: list[DetectionView]
     pairs: dict[int, int]
+    near: list[list[int]] = field(default_factory=list)  # per detection: truths whose grown box holds it
 
     def truth_of(self, det: int) -> TruthView | None:
         index = self.pairs.get(det)
@@ -166,16 +167,35 @@ def inside_box_xy(points: F64, center: F64, size: F64, yaw: float, margin: float
     return (np.abs(along) <= size[0] / 2 + margin) & (np.abs(across) <= size[1] / 2 + margin)
 
 
+def gate_matrix(
+    detections: list[DetectionView], truths: list[TruthView], margin: float = MATCH_MARGIN_M
+) -> npt.NDArray[np.bool_]:
+    """(detections x truths): whether the detection centroid lies in the truth's grown box."""
+    gate = np.zeros((len(detections), len(truths)), dtype=bool)
+    if detections and truths:
+        xy = np.array([d.centroid[:2] for d in detections])
+        for j, t in enumerate(truths):
+            gate[:, j] = inside_box_xy(xy, t.center, t.size, t.yaw, margin)
+    return gate
+
+
 def match(
     detections: list[DetectionView], truths: list[TruthView], margin: float = MATCH_MARGIN_M
 ) -> dict[int, int]:
     """One-to-one pairs (detection index -> truth index) by Hungarian assignment on distance."""
     if not detections or not truths:
         return {}
+    gate = gate_matrix(detections, truths, margin)
     xy = np.array([d.centroid[:2] for d in detections])
-    cost = np.full((len(detections), len(truths)), _FORBIDDEN)
-    for j, t in enumerate(truths):
-        gate = inside_box_xy(xy, t.center, t.size, t.yaw, margin)
-        cost[gate, j] = np.linalg.norm(xy[gate] - t.center[:2], axis=1)
+    centres = np.array([t.center[:2] for t in truths])
+    distance = np.linalg.norm(xy[:, None, :] - centres[None, :, :], axis=2)
+    cost = np.where(gate, distance, _FORBIDDEN)
     rows, cols = linear_sum_assignment(cost)
-    return {int(r): int(c) for r, c in zip(rows, cols, strict=True) if cost[r, c] < _FORBIDDEN}
+    return {int(r): int(c) for r, c in zip(rows, cols, strict=True) if gate[r, c]}
+
+
+def frame_match(frame_id: int, truths: list[TruthView], detections: list[DetectionView]) -> FrameMatch:
+    """Pairs of one frame, and for every detection the truths whose grown box holds it."""
+    gate = gate_matrix(detections, truths)
+    near = [[int(j) for j in np.nonzero(row)[0]] for row in gate]
+    return FrameMatch(frame_id, truths, detections, match(detections, truths), near)
