@@ -67,7 +67,7 @@ class StereoConfig:
     speckle_range: int = 2
     lr_check: str = "coarse"  # coarse (right view at half resolution) | full | off
     lr_max_diff_px: float = 1.0  # pixels of the coarser of the two disparity maps compared
-    fill_from_coarse: bool = True  # holes of the fine pass take the checked half-resolution value
+    fill_support_px: int = 5  # holes take the coarse value if within the fine ones this near (px); 0 = off
     pre_filter_cap: int = 63
     mode: str = "3way"  # 3way | sgbm | hh | hh4
     color_matching: bool = False  # False = match grey images (measured better and faster)

@@ -120,7 +120,7 @@ def test_decimation_keeps_every_nth_pixel() -> None:
 
 
 def test_full_resolution_left_right_check_also_works() -> None:
-    _, disp = _core(lr_check="full", fill_from_coarse="false").process(_scene())
+    _, disp = _core(lr_check="full", fill_support_px=0).process(_scene())
     box = disp.disparity[BOX]
     assert np.nanmedian(box) == pytest.approx(FX * BASELINE / BOX_DEPTH, abs=0.3)
     # the wall strip just left of the box in the left image is hidden from the right camera
@@ -171,7 +171,7 @@ def test_search_range_follows_the_calibration() -> None:
 @pytest.mark.timeout(120)
 def test_middlebury_cones_and_teddy() -> None:
     """Measured 3.1 % D1-est and 87 % density (11-12 % of these pixels are occluded)."""
-    core = _core(num_disparities=64, lr_check="full", fill_from_coarse="false")
+    core = _core(num_disparities=64, lr_check="full", fill_support_px=0)
     for scene in ("cones", "teddy"):
         folder = shared_path("data", "middlebury", scene)
         left, right = (cv2.cvtColor(cv2.imread(str(folder / n)), cv2.COLOR_BGR2RGB) for n in ("im2.png", "im6.png"))

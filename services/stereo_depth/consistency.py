@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from services.stereo_depth.sgbm import DisparityMap
 
@@ -34,3 +35,20 @@ def upsample(disp: DisparityMap, shape: tuple[int, int], factor: float) -> Dispa
     """A coarse disparity at full resolution: nearest neighbour (no blending across edges or NaN)."""
     full = cv2.resize(disp, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
     return (full * np.float32(factor)).astype(np.float32, copy=False)
+
+
+def within_neighbours(
+    candidate: DisparityMap, reference: DisparityMap, window: int, max_diff: float
+) -> npt.NDArray[np.bool_]:
+    """Where ``candidate`` lies within the range of ``reference``'s valid values around it (± max_diff).
+
+    A hole filled from the coarse pass must be corroborated by the fine pass around it: in an
+    occlusion the coarse value bleeds from the foreground and leaves that range, and a hole with
+    no fine value within reach stays a hole.
+    """
+    far = np.float32(-1.0e6)
+    kernel = np.ones((window, window), np.uint8)
+    valid = np.isfinite(reference)
+    high = cv2.dilate(np.where(valid, reference, far).astype(np.float32), kernel)
+    low = -cv2.dilate(np.where(valid, -reference, far).astype(np.float32), kernel)
+    return (high > far / 2) & (candidate <= high + max_diff) & (candidate >= low - max_diff)

@@ -16,7 +16,7 @@ import numpy as np
 
 from common.config import StereoConfig
 from common.errors import ConfigError
-from services.stereo_depth.consistency import left_right_check, upsample
+from services.stereo_depth.consistency import left_right_check, upsample, within_neighbours
 from services.stereo_depth.sgbm import DisparityMap, Image, SgbmParams, SgbmPass, round_up_16
 
 LR_MODES: tuple[str, ...] = ("coarse", "full", "off")
@@ -33,7 +33,7 @@ class MultiResolutionMatcher:
         coarse: SgbmPass | None,
         lr_check: str,
         lr_max_diff_px: float,
-        fill_from_coarse: bool,
+        fill_support_px: int,
         color: bool,
     ) -> None:
         if lr_check not in LR_MODES:
@@ -44,14 +44,14 @@ class MultiResolutionMatcher:
         self.coarse = coarse
         self.lr_check = lr_check
         self.lr_max_diff_px = lr_max_diff_px
-        self.fill_from_coarse = fill_from_coarse
+        self.fill_support_px = fill_support_px
         self.color = color
 
     @classmethod
     def for_range(cls, cfg: StereoConfig, max_disparity: int) -> MultiResolutionMatcher:
         """Matchers for a search range of ``max_disparity`` full-resolution pixels (a multiple of 16)."""
         fine_range = min(round_up_16(cfg.fine_disparities), max_disparity)
-        need_coarse = max_disparity > fine_range or cfg.lr_check == "coarse" or cfg.fill_from_coarse
+        need_coarse = max_disparity > fine_range or cfg.lr_check == "coarse" or cfg.fill_support_px > 0
         channels = 3 if cfg.color_matching else 1
 
         def params(disparities: int, uniqueness: int) -> SgbmParams:
@@ -71,7 +71,7 @@ class MultiResolutionMatcher:
 
         fine = SgbmPass(params(fine_range, cfg.uniqueness))
         coarse = SgbmPass(params(round_up_16(max_disparity / 2), cfg.coarse_uniqueness)) if need_coarse else None
-        return cls(fine, coarse, cfg.lr_check, cfg.lr_max_diff_px, cfg.fill_from_coarse, cfg.color_matching)
+        return cls(fine, coarse, cfg.lr_check, cfg.lr_max_diff_px, cfg.fill_support_px, cfg.color_matching)
 
     def match(self, left_rgb: Image, right_rgb: Image) -> DisparityMap:
         left, right = self._intensity(left_rgb), self._intensity(right_rgb)
@@ -110,11 +110,12 @@ class MultiResolutionMatcher:
         return disp
 
     def _fuse(self, fine: DisparityMap, coarse: DisparityMap | None) -> DisparityMap:
-        """Near pixels from the coarse pass, the rest from the fine one, holes from the coarse if allowed."""
+        """Near pixels from the coarse pass, the rest from the fine one, holes from the coarse where corroborated."""
         if coarse is None:
             return fine
         near = coarse >= self.fine.params.num_disparities - NEAR_MARGIN_PX
         fused = np.where(near, coarse, fine)
-        if self.fill_from_coarse:
-            fused = np.where(np.isnan(fused), coarse, fused)
+        if self.fill_support_px > 0:
+            holes = np.isnan(fused) & within_neighbours(coarse, fused, self.fill_support_px, self.lr_max_diff_px)
+            fused = np.where(holes, coarse, fused)
         return fused.astype(np.float32, copy=False)
