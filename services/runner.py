@@ -1,9 +1,13 @@
-"""``stereovox run SERVICE``: one service as its own process, on its own Zenoh session.
+"""``stereovox run SERVICE``: one pipeline stage as its own process, on its own Zenoh session.
 
 The configuration is the one typed tree (defaults, then ``--config FILE``, then ``--set``); the
 bus flags (``--connect``, ``--listen``, ``--mode``) are shorthands for ``bus.*`` keys. SIGINT and
 SIGTERM only set a stop event: the service's loop looks at it between timed waits, closes its
 subscribers, publishers and liveliness token, and the process exits 0.
+
+The recorder and the camera replay need more than a configuration (a file to write or read), so
+they are their own commands, ``stereovox record`` and ``stereovox replay``; they take the same
+bus flags through :func:`add_bus_arguments`, :func:`bus_config` and :func:`stop_on_signals`.
 """
 
 from __future__ import annotations
@@ -23,14 +27,12 @@ from common.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
-#: service name -> module exposing ``run(cfg, session, stop, ...)``.
+#: stage name -> module exposing ``run(cfg, session, stop, policy)``.
 SERVICES: dict[str, str] = {
     "stereo_depth": "services.stereo_depth.service",
     "odometry": "services.odometry.service",
     "voxel_mapper": "services.voxel_mapper.service",
     "tracker": "services.tracker.service",
-    "recorder": "services.recorder",
-    "camera_replay": "services.camera_replay",
 }
 
 
@@ -44,7 +46,8 @@ def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("service", choices=sorted(SERVICES), help="which service to run")
+    parser.add_argument("service", choices=list(SERVICES),
+                        help="which stage to run (the recorder and replay: stereovox record / replay)")
     parser.add_argument("--config", metavar="FILE", help="TOML/YAML configuration file")
     parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                         help="override one configuration key, e.g. voxel.edge=0.2 (repeatable)")
@@ -92,7 +95,8 @@ def run(args: argparse.Namespace) -> int:
     extra = {"policy": args.policy} if "policy" in inspect.signature(entry).parameters else {}
     stop = stop_on_signals()
     with open_session(cfg.bus) as session:
-        log.info("%s: joined the bus as %s (listen %s, connect %s)", args.service, cfg.bus.mode,
-                 cfg.bus.listen or "loopback", cfg.bus.connect or "-")
+        listen = cfg.bus.listen or ("-" if cfg.bus.mode == "client" else "an ephemeral loopback port")
+        log.info("%s: joined the bus as %s (listen %s, connect %s)", args.service, cfg.bus.mode, listen,
+                 cfg.bus.connect or "-")
         entry(cfg, session, stop, **extra)
     return 0

@@ -16,7 +16,7 @@ from conftest import Processes, free_port, stereovox_cmd, wait_for
 from common.bus import Publisher, open_session, subscribe, watch_alive
 from common.config import BusConfig, Config
 from common.errors import InputError
-from common.messages import Clusters, EgoMotion, Health, Obstacles, encode, key_for
+from common.messages import Calibration, Clusters, EgoMotion, Health, Obstacles, StereoFrame, encode, key_for, now_ns
 from services.join import FrameJoiner
 from services.shell import Stage, StageLoop
 
@@ -204,3 +204,56 @@ def test_tracker_process_drops_malformed_input_counts_it_and_keeps_answering(
     log = processes.log(proc)
     assert "tracker ready" in log and "malformed" in log
     wait_for(lambda: "tracker" not in alive, 10, "the liveliness token to go away")
+
+
+def stereo_frame(k: int, width: int = 320, height: int = 240) -> StereoFrame:
+    """A textured wall 9.45 m ahead (20 px of disparity), seen by a rig 1.65 m above the road."""
+    rng = np.random.default_rng(1)
+    texture = rng.integers(0, 256, (height, width + 20, 3), dtype=np.uint8)
+    cam_to_vehicle = np.array([[0, 0, 1, 0], [-1, 0, 0, 0], [0, -1, 0, 1.65], [0, 0, 0, 1]], dtype=np.float64)
+    calib = Calibration(fx=350.0, fy=350.0, cx=width / 2, cy=height / 2, baseline=0.54, width=width, height=height,
+                        cam_to_vehicle=cam_to_vehicle)
+    stamp = now_ns()
+    return StereoFrame(frame_id=k, stamp_ns=1_000_000_000 + k * 100_000_000, left=texture[:, 20:].copy(),
+                       right=texture[:, :width].copy(), calib=calib, timing=[("camera_replay", stamp, stamp)])
+
+
+@pytest.mark.timeout(240)
+def test_four_stage_processes_answer_every_frame_in_lockstep_with_the_whole_trail(
+    router: tuple[zenoh.Session, int], processes: Processes
+) -> None:
+    session, port = router
+    stages = ("stereo_depth", "odometry", "voxel_mapper", "tracker")
+    alive = alive_set(session)
+    out = subscribe(session, key_for("tracker/obstacles"), Obstacles, "fifo", depth=16)
+    health = {s: subscribe(session, key_for(f"health/{s}"), Health, "newest") for s in stages}
+    procs = {s: start_service(processes, s, port, "--policy", "fifo") for s in stages}
+    wait_for(lambda: set(stages) <= alive or any(p.poll() is not None for p in procs.values()), 120,
+             "all four stages' liveliness tokens")
+    assert all(p.poll() is None for p in procs.values()), {s: processes.log(p)[-2000:] for s, p in procs.items()}
+    camera = Publisher(session, key_for("camera/stereo"))
+    results: list[Obstacles] = []
+    for k in range(4):  # lockstep, as camera_replay does: frame k+1 once frame k's obstacles are out
+        camera.put(stereo_frame(k))
+        results += collect(out, 1, 120, f"obstacles for frame {k}")
+    assert [m.frame_id for m in results] == [0, 1, 2, 3]
+    for m in results:
+        names = [t[0] for t in m.timing]
+        assert names[0] == "camera_replay" and names[-2:] == ["voxel_mapper", "tracker"], names
+        assert sorted(names[1:3]) == ["odometry", "stereo_depth"], names
+        assert m.stamp_ns == 1_000_000_000 + m.frame_id * 100_000_000
+        assert all(a[1] <= b[1] for a, b in zip(m.timing, m.timing[1:], strict=False))
+    for s in stages:
+        report: list[Health] = []
+
+        def reported(name: str = s, box: list[Health] = report) -> bool:
+            item = health[name].recv(0.2)
+            if item is not None:
+                box[:] = [item.msg]
+            return bool(box) and box[0].frames_out == 4
+
+        wait_for(reported, 30, f"{s}'s Health to count four frames")
+        assert report[0].errors == 0 and report[0].dropped == 0 and report[0].p50_ms > 0, report[0]
+    for s, p in procs.items():
+        assert processes.stop(p, signal.SIGTERM) == 0, processes.log(p)[-2000:]
+        assert f"{s} ready" in processes.log(p)
