@@ -17,7 +17,7 @@ import pytest
 from conftest import REPO, stereovox_cmd
 
 from common.config import VolumeConfig
-from common.evaluation.evaluate import KEYS, evaluate_recording
+from common.evaluation.evaluate import KEYS, evaluate_recording, stitched_poses
 from common.evaluation.inputs import ClusterBox, FrameClusters
 from common.evaluation.matching import DetectionView, TruthView, match, truth_in_vehicle
 from common.evaluation.segmentation import segmentation_figures
@@ -508,3 +508,13 @@ def test_a_second_piece_of_an_object_is_no_phantom_but_a_moving_one_is_a_false_p
     assert r["obstacles"] == {"precision": 1.0, "phantoms_per_frame": 0.0}
     assert (r["moving"]["tp"], r["moving"]["fp"], r["moving"]["fn"]) == (10, 10, 0)
     assert r["speed"]["pairs"] == 10
+
+
+def test_a_reanchored_odometry_epoch_is_chained_on_with_its_delta() -> None:
+    step = make_pose(np.eye(3), [1.0, 0.0, 0.0])
+    msgs = []
+    for k in range(20):
+        epoch, local = (0, k) if k < 10 else (1, k - 10)  # the world restarts at frame 10
+        msgs.append(EgoMotion(frame_id=k, stamp_ns=k, pose=true_pose(local), delta=step, world_epoch=epoch))
+    poses = stitched_poses(msgs)
+    np.testing.assert_allclose([p[0, 3] for p in poses], np.arange(20.0), atol=1e-12)
