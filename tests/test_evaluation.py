@@ -51,9 +51,6 @@ CALIB = {
     "cam_to_vehicle": CAM.tolist(),
 }
 CAR = np.array([4.0, 1.8, 1.5])
-#: a DontCare box far outside the image: the codec cannot yet encode a 0 x 4 array (memoryview
-#: cast of an empty array), which is GroundTruthObjects' default.
-NO_DONTCARE = np.array([[-100.0, -100.0, -90.0, -90.0]], np.float32)
 
 
 def car(oid: int, center: list[float], velocity: list[float], **visibility: float) -> GroundTruthObject:
@@ -167,7 +164,8 @@ def write_run(
             if ground_truth:
                 w.write(key_for("groundtruth/ego"), GroundTruthEgo(frame_id=k, stamp_ns=stamp, pose=true_pose(k)))
                 gt = GroundTruthObjects(frame_id=k, stamp_ns=stamp, objects=objs, gt_complete=True)
-                gt.dontcare = NO_DONTCARE if dontcare is None else dontcare
+                if dontcare is not None:
+                    gt.dontcare = dontcare
                 w.write(key_for("groundtruth/objects"), gt)
             w.write(
                 key_for("odometry/ego"),
