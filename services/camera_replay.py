@@ -27,6 +27,7 @@ from common.config import Config
 from common.errors import BusError, ConfigError
 from common.messages import IMAGE_FORMATS, Obstacles, StereoFrame, decode, encode, key_for, now_ns, topic_of
 from common.recording import RawRecord, RecordingReader, open_recording, peek_stamp
+from services.health import HealthReporter, StageHealth
 from services.replay_clock import Pacer, Renumbering
 from services.service_args import add_bus_arguments, config_from_args, stop_on_signals
 
@@ -91,6 +92,13 @@ class Replay:
         )
         self._pending: int | None = None  # last frame id whose obstacles lockstep still awaits
         self._done = -1  # highest frame id the tracker reported
+        self.health = StageHealth("camera_replay", [self.obstacles] if self.obstacles else [])
+        self.health.extra |= {
+            "lockstep_timeouts": lambda: self.stats.lockstep_timeouts,
+            "other_messages": lambda: self.stats.other,
+            "passes": lambda: self.stats.passes,
+            "truncated": lambda: self.stats.truncated,
+        }
 
     def _wanted(self, topic: str) -> bool:
         return any(t.includes(zenoh.KeyExpr(topic)) for t in self.topics)
@@ -138,6 +146,7 @@ class Replay:
         return pub
 
     def _publish_frame(self, rec: RawRecord, frame_id: int, stamp: int) -> None:
+        start = time.perf_counter()
         frame = decode(rec.data, StereoFrame)
         t = now_ns()
         frame = dataclasses.replace(
@@ -146,6 +155,8 @@ class Replay:
         )
         self._publisher(CAMERA_TOPIC).put(encode(frame))
         self.stats.frames += 1
+        self.health.frames_out += 1
+        self.health.processed((time.perf_counter() - start) * 1e3)
         self._pending = frame_id
 
     def _publish_other(self, rec: RawRecord, topic: str, frame_id: int | None, stamp: int) -> None:
@@ -166,6 +177,7 @@ class Replay:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 self.stats.lockstep_timeouts += 1
+                self.health.last_error = f"lockstep timeout on frame {frame_id}"
                 log.warning(
                     "lockstep: no obstacles for frame %d within %.1f s (%d timeouts so far); going on",
                     frame_id, timeout, self.stats.lockstep_timeouts,
@@ -196,7 +208,10 @@ def run_replay(
             wait_for_services(session, cfg, wait, stop)
         mode = "lockstep" if rc.lockstep else ("max" if rc.rate <= 0 else f"rate {rc.rate:g}")
         print(f"camera_replay ready: {path} ({mode}{', loop' if loop else ''})", flush=True)
-        stats = replay.run(loop, max_frames)
+        health = Publisher(session, key_for("health/camera_replay", cfg.bus.vehicle))
+        with HealthReporter(replay.health, health, cfg.health_period_s):
+            stats = replay.run(loop, max_frames)
+        health.close()
     finally:
         replay.close()
         token.undeclare()

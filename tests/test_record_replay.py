@@ -218,6 +218,9 @@ def test_lockstep_waits_for_obstacles_and_reports_a_timeout(
     watcher.undeclare()
     log = processes.log(replay)
     assert "no obstacles for frame 3 within 1.5 s" in log and "1 lockstep timeouts" in log
+    wait_for(lambda: "camera_replay" in hub.health and hub.health["camera_replay"].frames_out == 8, 10,
+             "the replay's last Health report")
+    assert hub.health["camera_replay"].detail["lockstep_timeouts"] == 1
     assert sorted(tracker.received) == list(range(8))
     for k in range(7):
         if k == 3:  # no reply: frame 4 waited out the timeout after frame 3
@@ -227,14 +230,22 @@ def test_lockstep_waits_for_obstacles_and_reports_a_timeout(
 
 
 def test_loop_keeps_frame_ids_increasing(tmp_path: Path, processes: Processes, hub: Hub) -> None:
+    """Also: PNG on the wire gives back the recorded pixels exactly."""
     source = tmp_path / "source.mcap"
     write_recording(source, 6)
     got: dict[str, list[tuple[int, int, int]]] = {}
-    sub = hub.listen("stereovox/ego/**", lambda k, m, t: got.setdefault(k, []).append((m.frame_id, m.stamp_ns, t)))
+    frames: list[Message] = []
+
+    def on_msg(key: str, msg: Message, t: int) -> None:
+        got.setdefault(key, []).append((msg.frame_id, msg.stamp_ns, t))
+        if key == CAMERA:
+            frames.append(msg)
+
+    sub = hub.listen("stereovox/ego/**", on_msg)
     token = declare_alive(hub.session, "monitor", "ego")
     replay = processes.start(
         stereovox_cmd("replay", str(source), "--rate", "4", "--loop", "--max-frames", "15", "--wait-for", "monitor",
-                      "--connect", hub.endpoint),
+                      "--image-format", "png", "--connect", hub.endpoint),
         "replay",
     )
     assert replay.wait(60) == 0, processes.log(replay)
@@ -250,6 +261,11 @@ def test_loop_keeps_frame_ids_increasing(tmp_path: Path, processes: Processes, h
     arrivals = [t for _, _, t in got[CAMERA]]
     assert arrivals[-1] - arrivals[0] >= 0.9 * 14 * 25e6
     assert "2 passes" in processes.log(replay)  # two whole passes and part of a third
+    recorded = [m for _, m in open_recording(source).messages(keys=[CAMERA])]
+    for i, f in enumerate(frames):
+        assert isinstance(f, StereoFrame) and f.image_format == "png"
+        np.testing.assert_array_equal(f.left, recorded[i % 6].left)
+        np.testing.assert_array_equal(f.right, recorded[i % 6].right)
 
 
 def test_truncated_recording_replays_its_readable_part(tmp_path: Path, processes: Processes) -> None:
