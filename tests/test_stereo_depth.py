@@ -81,6 +81,15 @@ def test_known_surface_point_within_one_percent_of_depth() -> None:
     assert len(cloud.points) == len(cloud.colors) > 0.5 * WIDTH * HEIGHT  # the wall's top is above z_max
 
 
+def test_near_surfaces_beyond_the_full_resolution_range_come_from_the_coarse_pass() -> None:
+    """With a 16 px full-resolution range, the box (30 px) and the wall (15 px) are measured at half resolution."""
+    _, disp = _core(fine_disparities=16).process(_scene())
+    box, wall = disp.disparity[BOX], disp.disparity[:, :100]
+    assert np.isfinite(box).mean() > 0.9 and np.isfinite(wall[:, 20:]).mean() > 0.9
+    assert np.nanmedian(box) == pytest.approx(FX * BASELINE / BOX_DEPTH, rel=0.02)
+    assert np.nanmedian(wall) == pytest.approx(FX * BASELINE / PLANE_DEPTH, rel=0.02)
+
+
 def test_colours_are_the_left_image_pixels() -> None:
     frame = _scene()
     cloud, disp = _core().process(frame)
