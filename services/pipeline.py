@@ -141,7 +141,12 @@ def process_file(
     processed = 0
     with RecordingWriter(out, compression=cfg.recorder.compression, atomic=True) as writer:
         writer.describe(cfg.to_dict(), {**info, "processed_by": "stereovox process"})
-        for item in progress(run_recording(reader, cfg, max_frames), total, f"process {src.name}"):
+        for item in progress(
+            run_recording(reader, cfg, max_frames),
+            total,
+            f"process {src.name}",
+            counts=lambda item: isinstance(item, FrameResult),
+        ):
             if isinstance(item, FrameResult):
                 processed += 1
                 if with_frames:
