@@ -35,6 +35,7 @@ class BenchResult:
     frames_received: int
     rate_hz: float  # asked for; 0 = flat out
     image_format: str
+    shared_memory: bool
     payload_bytes: int
     latency_p50_ms: float
     latency_p99_ms: float
@@ -90,13 +91,15 @@ def measure(
     image_format: str = "raw",
     port: int = 0,
     timeout_s: float = 120.0,
+    shared_memory: bool = False,
 ) -> BenchResult:
     """Receive ``frames`` stereo frames from a sender process over loopback TCP and time them."""
     listen = f"tcp/127.0.0.1:{port or _free_port()}"
-    with open_session(BusConfig(mode="peer", listen=[listen])) as session:
+    with open_session(BusConfig(mode="peer", listen=[listen], shared_memory=shared_memory)) as session:
         sub = subscribe(session, key_for(TOPIC), StereoFrame, "fifo", depth=frames + 8)
         cmd = [sys.executable, "-m", "services.bus_bench", "--send", "--connect", listen, "--frames", str(frames),
-               "--rate", str(rate_hz), "--width", str(width), "--height", str(height), "--format", image_format]
+               "--rate", str(rate_hz), "--width", str(width), "--height", str(height), "--format", image_format,
+               *(["--shm"] if shared_memory else [])]
         sender = subprocess.Popen(cmd, start_new_session=True)
         latencies, arrivals, size = [], [], 0
         try:
@@ -120,7 +123,7 @@ def measure(
     span_s = (arrivals[-1] - arrivals[0]) / 1e9
     return BenchResult(
         frames_sent=frames, frames_received=len(arrivals), rate_hz=rate_hz, image_format=image_format,
-        payload_bytes=size, latency_p50_ms=round(float(np.percentile(lat, 50)), 3),
+        shared_memory=shared_memory, payload_bytes=size, latency_p50_ms=round(float(np.percentile(lat, 50)), 3),
         latency_p99_ms=round(float(np.percentile(lat, 99)), 3), latency_max_ms=round(float(lat.max()), 3),
         frames_per_s=round((len(arrivals) - 1) / span_s, 1) if span_s > 0 else 0.0,
     )
@@ -137,12 +140,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--width", type=int, default=640)
     parser.add_argument("--height", type=int, default=480)
     parser.add_argument("--format", default="raw", choices=("raw", "png", "jpeg"))
+    parser.add_argument("--shm", action="store_true", help="Zenoh shared memory on both sides (bus.shared_memory)")
     args = parser.parse_args(argv)
     if args.send:
-        bus = BusConfig(mode="peer", connect=[args.connect], listen=["tcp/127.0.0.1:0"])
+        bus = BusConfig(mode="peer", connect=[args.connect], listen=["tcp/127.0.0.1:0"], shared_memory=args.shm)
         send(bus, args.frames, args.rate, args.width, args.height, args.format, args.topic)
         return 0
-    result = measure(args.frames, args.rate, args.width, args.height, args.format, args.port)
+    result = measure(args.frames, args.rate, args.width, args.height, args.format, args.port, shared_memory=args.shm)
     print(json.dumps(asdict(result)))
     return 0
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import signal
 import subprocess
 import threading
+import time
 from collections.abc import Iterator
 
 import msgpack
@@ -138,6 +139,30 @@ def test_stage_loop_joins_stamps_and_answers_every_frame(router: tuple[zenoh.Ses
     assert report.detail["join_evicted"] == 0 and report.detail["join_pending"] == 0
 
 
+
+@pytest.mark.timeout(60)
+def test_newest_policy_processes_the_latest_frame_and_counts_the_skipped(router: tuple[zenoh.Session, int]) -> None:
+    session, port = router
+    with open_session(BusConfig(mode="client", connect=[f"tcp/127.0.0.1:{port}"])) as client:
+        loop = StageLoop(trivial_stage(), Config(), client, policy="newest")
+        out = subscribe(session, key_for("tracker/obstacles"), Obstacles, "fifo", depth=64)
+        pub_c, pub_e = Publisher(session, key_for("voxel_mapper/clusters")), Publisher(session, key_for("odometry/ego"))
+        try:
+            wait_for(lambda: pub_c.matched() and pub_e.matched(), 30, "the shell's subscribers")
+            for k in range(5, 10):  # the stage is busy elsewhere: five frames pile up
+                pub_c.put(clusters(k))
+                pub_e.put(ego(k))
+            wait_for(lambda: all(s.received == 5 for s in loop.subs.values()), 30, "the five frames to arrive")
+            wait_for(loop.step, 10, "one frame processed")
+            results = collect(out, 1, 30, "the newest frame's obstacles")
+            assert not loop.step(0.2)  # nothing older is left to process
+        finally:
+            loop.close()
+    assert [m.frame_id for m in results] == [9]
+    report = loop.health.report()
+    assert (report.frames_in, report.frames_out, report.dropped) == (10, 1, 8)
+    assert report.detail["inputs"][key_for("odometry/ego")]["dropped"] == 4
+
 # ----------------------------------------------------------------------------- real service processes
 
 
@@ -227,6 +252,7 @@ def test_four_stage_processes_answer_every_frame_in_lockstep_with_the_whole_trai
     alive = alive_set(session)
     out = subscribe(session, key_for("tracker/obstacles"), Obstacles, "fifo", depth=16)
     health = {s: subscribe(session, key_for(f"health/{s}"), Health, "newest") for s in stages}
+    started_ms = time.time_ns() // 1_000_000
     procs = {s: start_service(processes, s, port, "--policy", "fifo") for s in stages}
     wait_for(lambda: set(stages) <= alive or any(p.poll() is not None for p in procs.values()), 120,
              "all four stages' liveliness tokens")
@@ -242,6 +268,7 @@ def test_four_stage_processes_answer_every_frame_in_lockstep_with_the_whole_trai
         assert names[0] == "camera_replay" and names[-2:] == ["voxel_mapper", "tracker"], names
         assert sorted(names[1:3]) == ["odometry", "stereo_depth"], names
         assert m.stamp_ns == 1_000_000_000 + m.frame_id * 100_000_000
+        assert m.world_epoch >= started_ms  # a (re)started odometry anchors a world newer than any before
         assert all(a[1] <= b[1] for a, b in zip(m.timing, m.timing[1:], strict=False))
     for s in stages:
         report: list[Health] = []

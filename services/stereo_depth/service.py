@@ -49,7 +49,7 @@ def stage(cfg: Config) -> Stage:
         outputs=("stereo_depth/points", "stereo_depth/disparity"),
         process=process,
         empty=empty,
-        degenerate=lambda: bool(getattr(core, "last_degenerate", False)),
+        degenerate=lambda: core.last_degenerate,
     )
 
 
