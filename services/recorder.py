@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import zenoh
 
 from common.bus import Publisher, declare_alive, open_session
@@ -94,6 +95,7 @@ class RecorderStats:
     written: int = 0
     dropped: int = 0
     bytes_written: int = 0
+    callback_s: float = 0.0  # time spent on Zenoh's delivery thread, all messages together
 
 
 class Recorder:
@@ -106,6 +108,8 @@ class Recorder:
         self.parts = parts
         self.stats = RecorderStats()
         self.by_topic: dict[str, int] = {}  # messages written per topic, for Health
+        self.dropped_by_topic: dict[str, int] = {}
+        self.write_ms: collections.deque[float] = collections.deque(maxlen=300)  # recent writes, for p50/p95
         self.error: RecordingError | None = None
         self._queue = ByteQueue(int(rc.queue_mb * 1024 * 1024), block=rc.when_full == "block")
         self._flush_s = rc.flush_interval_s
@@ -116,10 +120,15 @@ class Recorder:
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         """The hot path: copy out of Zenoh, stamp, enqueue; nothing is decoded here."""
+        start = time.perf_counter()
         received = time.time_ns()
         self.stats.received += 1
-        if not self._queue.put((str(sample.key_expr), sample.payload.to_bytes(), received)):
+        key = str(sample.key_expr)
+        if not self._queue.put((key, sample.payload.to_bytes(), received)):
             self.stats.dropped += 1
+            topic = topic_of(key)
+            self.dropped_by_topic[topic] = self.dropped_by_topic.get(topic, 0) + 1
+        self.stats.callback_s += time.perf_counter() - start
 
     def _write_loop(self) -> None:
         next_flush = time.monotonic() + self._flush_s
@@ -128,8 +137,10 @@ class Recorder:
                 item = self._queue.get(timeout_s=0.1)
                 if item is not None:
                     key, data, received = item
+                    start = time.perf_counter()
                     stamp = peek_stamp(data)
                     self.parts.write(key, data, received, stamp[1] if stamp else received)
+                    self.write_ms.append((time.perf_counter() - start) * 1e3)
                     self.stats.written += 1
                     self.stats.bytes_written += len(data)
                     topic = topic_of(key)
@@ -140,10 +151,17 @@ class Recorder:
                     self.parts.flush()
                     next_flush = time.monotonic() + self._flush_s
             self.parts.close()
+        except RecordingError as exc:  # the next part of a split recording could not be opened
+            self._fail(exc)
         except OSError as exc:
-            self.error = RecordingError(f"cannot write: {exc.strerror or exc}; recording stopped", str(self.parts.path))
-            self._queue.close()
-            self.parts.abort()
+            self._fail(RecordingError(f"cannot write: {exc.strerror or exc}; recording stopped", str(self.parts.path)))
+        except Exception as exc:  # anything else would leave a recorder that silently records nothing
+            self._fail(RecordingError(f"writer failed: {type(exc).__name__}: {exc}", str(self.parts.path)))
+
+    def _fail(self, error: RecordingError) -> None:
+        self.error = error
+        self._queue.close()
+        self.parts.abort()
 
     @property
     def failed(self) -> bool:
@@ -157,7 +175,14 @@ class Recorder:
             "file": str(self.parts.path),
             "files": len(self.parts.paths),
             "written_by_topic": dict(self.by_topic),
+            "dropped_by_topic": dict(self.dropped_by_topic),
+            "callback_us_mean": round(1e6 * self.stats.callback_s / max(1, self.stats.received), 1),
         }
+
+    def write_percentiles(self) -> tuple[float, float]:
+        """p50 and p95 of the recent per-message write times (ms): compression included."""
+        times = np.array(self.write_ms, dtype=np.float64)
+        return (float(np.percentile(times, 50)), float(np.percentile(times, 95))) if times.size else (0.0, 0.0)
 
     def close(self) -> None:
         """Stop receiving, write what is queued, finish the file."""
@@ -208,10 +233,12 @@ def run_recorder(
             detail = recorder.health_detail() | {"mb_per_s": round((done - last_bytes) / 1e6 / (now - last_t), 3)}
             last_bytes, last_t, reports = done, now, reports + 1
             s = recorder.stats
+            p50, p95 = recorder.write_percentiles()
             health.put(
                 Health(
                     frame_id=reports, stamp_ns=time.time_ns(), service="recorder", frames_in=s.received,
                     frames_out=s.written, dropped=s.dropped, uptime_s=now - started, detail=detail,
+                    p50_ms=round(p50, 3), p95_ms=round(p95, 3),
                 )
             )
     finally:

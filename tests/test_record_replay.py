@@ -324,3 +324,28 @@ def test_split_by_duration_starts_new_parts(tmp_path: Path, processes: Processes
     parts = [tmp_path / f"timed_{i}.mcap" for i in range(3)]
     ids = [m.frame_id for p in parts for _, m in open_recording(p).messages(keys=[CAMERA])]
     assert ids == list(range(sent))
+
+
+@pytest.mark.parametrize("when_full", ["drop", "block"])
+def test_full_queue_accounting(tmp_path: Path, processes: Processes, hub: Hub, when_full: str) -> None:
+    """A queue of 10 KB holds one 18 KB frame: ``drop`` counts every frame it could not keep, ``block`` keeps all."""
+    out = tmp_path / f"{when_full}.mcap"
+    recorder = start_recorder(processes, hub, out, "--when-full", when_full, "--set", "recorder.queue_mb=0.01")
+    sent = 150
+    publish_frames(hub, sent)
+
+    def counts() -> tuple[int, int]:
+        h = hub.health.get("recorder")
+        if h is None:
+            return 0, 0
+        topic = "camera/stereo"
+        return h.detail["written_by_topic"].get(topic, 0), h.detail["dropped_by_topic"].get(topic, 0)
+
+    wait_for(lambda: sum(counts()) >= sent, 30, "every frame written or counted as dropped")
+    written, dropped = counts()
+    assert processes.stop(recorder, signal.SIGINT) == 0, processes.log(recorder)
+    frames = [m.frame_id for _, m in open_recording(out).messages(keys=[CAMERA])]
+    assert len(frames) == written == sent - dropped
+    assert frames == sorted(frames)
+    if when_full == "block":
+        assert dropped == 0 and frames == list(range(sent))
