@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 import signal
 import subprocess
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import msgpack
 import numpy as np
@@ -17,7 +18,18 @@ from conftest import Processes, free_port, stereovox_cmd, wait_for
 from common.bus import Publisher, open_session, subscribe, watch_alive
 from common.config import BusConfig, Config
 from common.errors import InputError
-from common.messages import Calibration, Clusters, EgoMotion, Health, Obstacles, StereoFrame, encode, key_for, now_ns
+from common.messages import (
+    Calibration,
+    Clusters,
+    EgoMotion,
+    Health,
+    Obstacles,
+    PointCloud,
+    StereoFrame,
+    encode,
+    key_for,
+    now_ns,
+)
 from services.join import FrameJoiner
 from services.shell import Stage, StageLoop
 
@@ -239,18 +251,20 @@ def stereo_frame(k: int, width: int = 320, height: int = 240) -> StereoFrame:
     calib = Calibration(fx=350.0, fy=350.0, cx=width / 2, cy=height / 2, baseline=0.54, width=width, height=height,
                         cam_to_vehicle=cam_to_vehicle)
     stamp = now_ns()
-    return StereoFrame(frame_id=k, stamp_ns=1_000_000_000 + k * 100_000_000, left=texture[:, 20:].copy(),
-                       right=texture[:, :width].copy(), calib=calib, timing=[("camera_replay", stamp, stamp)])
+    return StereoFrame(frame_id=k, stamp_ns=1_000_000_000 + k * 100_000_000, left=texture[:, :width].copy(),
+                       right=texture[:, 20:].copy(), calib=calib, timing=[("camera_replay", stamp, stamp)])
 
 
 @pytest.mark.timeout(240)
 def test_four_stage_processes_answer_every_frame_in_lockstep_with_the_whole_trail(
     router: tuple[zenoh.Session, int], processes: Processes
 ) -> None:
+    """Frame 1 is blank (degenerate), frame 2 has a broken calibration (stereo_depth raises): both answered."""
     session, port = router
     stages = ("stereo_depth", "odometry", "voxel_mapper", "tracker")
     alive = alive_set(session)
     out = subscribe(session, key_for("tracker/obstacles"), Obstacles, "fifo", depth=16)
+    clouds = subscribe(session, key_for("stereo_depth/points"), PointCloud, "fifo", depth=16)
     health = {s: subscribe(session, key_for(f"health/{s}"), Health, "newest") for s in stages}
     started_ms = time.time_ns() // 1_000_000
     procs = {s: start_service(processes, s, port, "--policy", "fifo") for s in stages}
@@ -258,11 +272,14 @@ def test_four_stage_processes_answer_every_frame_in_lockstep_with_the_whole_trai
              "all four stages' liveliness tokens")
     assert all(p.poll() is None for p in procs.values()), {s: processes.log(p)[-2000:] for s, p in procs.items()}
     camera = Publisher(session, key_for("camera/stereo"))
+    frames = [stereo_frame(k) for k in range(5)]
+    frames[1] = dataclasses.replace(frames[1], left=np.zeros_like(frames[1].left), right=np.zeros_like(frames[1].left))
+    frames[2] = dataclasses.replace(frames[2], calib=dataclasses.replace(frames[2].calib, baseline=0.0))
     results: list[Obstacles] = []
-    for k in range(4):  # lockstep, as camera_replay does: frame k+1 once frame k's obstacles are out
-        camera.put(stereo_frame(k))
-        results += collect(out, 1, 120, f"obstacles for frame {k}")
-    assert [m.frame_id for m in results] == [0, 1, 2, 3]
+    for frame in frames:  # lockstep, as camera_replay does: frame k+1 once frame k's obstacles are out
+        camera.put(frame)
+        results += collect(out, 1, 120, f"obstacles for frame {frame.frame_id}")
+    assert [m.frame_id for m in results] == [0, 1, 2, 3, 4]
     for m in results:
         names = [t[0] for t in m.timing]
         assert names[0] == "camera_replay" and names[-2:] == ["voxel_mapper", "tracker"], names
@@ -270,17 +287,28 @@ def test_four_stage_processes_answer_every_frame_in_lockstep_with_the_whole_trai
         assert m.stamp_ns == 1_000_000_000 + m.frame_id * 100_000_000
         assert m.world_epoch >= started_ms  # a (re)started odometry anchors a world newer than any before
         assert all(a[1] <= b[1] for a, b in zip(m.timing, m.timing[1:], strict=False))
-    for s in stages:
-        report: list[Health] = []
-
-        def reported(name: str = s, box: list[Health] = report) -> bool:
-            item = health[name].recv(0.2)
-            if item is not None:
-                box[:] = [item.msg]
-            return bool(box) and box[0].frames_out == 4
-
-        wait_for(reported, 30, f"{s}'s Health to count four frames")
-        assert report[0].errors == 0 and report[0].dropped == 0 and report[0].p50_ms > 0, report[0]
+    cloud_sizes = {m.frame_id: len(m.points) for m in collect(clouds, 5, 30, "five clouds")}
+    assert cloud_sizes[0] > 0 and cloud_sizes[1] == 0 and cloud_sizes[2] == 0, cloud_sizes  # blank; empty output
+    reports = {s: last_health(health[s], lambda h: h.frames_out == 5, f"{s}'s Health to count five frames")
+               for s in stages}
+    assert reports["stereo_depth"].errors == 1 and "baseline" in reports["stereo_depth"].detail["last_error"]
+    assert reports["stereo_depth"].detail["degenerate"] >= 1
+    assert reports["voxel_mapper"].errors == 0 and reports["tracker"].errors == 0
+    assert all(r.dropped == 0 and r.decode_errors == 0 and r.p50_ms > 0 for r in reports.values()), reports
     for s, p in procs.items():
         assert processes.stop(p, signal.SIGTERM) == 0, processes.log(p)[-2000:]
         assert f"{s} ready" in processes.log(p)
+
+
+def last_health(sub: object, done: Callable[[Health], bool], what: str) -> Health:
+    """The newest Health report once ``done`` holds for it."""
+    box: list[Health] = []
+
+    def check() -> bool:
+        item = sub.recv(0.2)  # type: ignore[attr-defined]
+        if item is not None:
+            box[:] = [item.msg]
+        return bool(box) and done(box[0])
+
+    wait_for(check, 30, what)
+    return box[0]
