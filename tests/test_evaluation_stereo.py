@@ -30,9 +30,7 @@ def test_interpolation_fills_top_and_bottom_rows_but_not_a_gap_between_rows() ->
 def test_d1_on_a_hand_made_pair() -> None:
     truth = np.full((2, 8), 10.0, dtype=np.float32)
     truth[1, 7] = N  # no truth here: counts nowhere
-    est = np.array(
-        [[10, N, N, 20, 20, N, 10, N], [N, N, N, N, N, N, N, 50]], dtype=np.float32
-    )
+    est = np.array([[10, N, N, 20, 20, N, 10, N], [N, N, N, N, N, N, N, 50]], dtype=np.float32)
     # row 0 filled: [10, 10, 10, 20, 20, 10, 10, 10] -> 2 bad; row 1 filled: all 50 -> 7 bad
     result = d1_frame(est, truth)
     assert result["d1_all_pct"] == pytest.approx(100 * 9 / 15)

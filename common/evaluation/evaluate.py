@@ -104,9 +104,7 @@ def odometry_figures(run: RunInputs, ev: Evaluation) -> dict[str, float] | None:
     else:
         c = np.asarray(run.calib.cam_to_vehicle, dtype=np.float64)
     c_inv = invert(c)
-    result = odometry_errors(
-        [c_inv @ p @ c for p in ev.est_trajectory], [c_inv @ p @ c for p in ev.true_trajectory]
-    )
+    result = odometry_errors([c_inv @ p @ c for p in ev.est_trajectory], [c_inv @ p @ c for p in ev.true_trajectory])
     if result is None:
         ev.notes.append("odometry: the true path is shorter than the shortest segment (10 m)")
     return result

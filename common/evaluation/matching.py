@@ -179,9 +179,7 @@ def gate_matrix(
     return gate
 
 
-def match(
-    detections: list[DetectionView], truths: list[TruthView], margin: float = MATCH_MARGIN_M
-) -> dict[int, int]:
+def match(detections: list[DetectionView], truths: list[TruthView], margin: float = MATCH_MARGIN_M) -> dict[int, int]:
     """One-to-one pairs (detection index -> truth index) by Hungarian assignment on distance."""
     if not detections or not truths:
         return {}

@@ -48,7 +48,7 @@ def grace_ids(frames: list[FrameMatch], grace: int = GRACE_FRAMES) -> list[set[i
 
 
 def scored_class(truth: TruthView, young: set[int]) -> str:
-    """"moving", "stationary" or "ignored" for per-frame figures."""
+    """Class of a truth in per-frame figures: moving, stationary or ignored."""
     if not truth.counted or truth.id in young or truth.motion == "between":
         return "ignored"
     return truth.motion
@@ -96,7 +96,6 @@ class Tally:
                 self.stationary += 1
                 self.stationary_matched += det is not None
                 self.stationary_moving += det is not None and det.moving
-
 
     def _add_unmatched(self, det: DetectionView, frame: FrameMatch, d: int, young: set[int]) -> None:
         """A detection the one-to-one assignment left over.

@@ -47,9 +47,7 @@ def _relative(a: F64, b: F64) -> F64:
     return np.linalg.inv(a) @ b
 
 
-def segment_errors(
-    est: Sequence[F64], truth: Sequence[F64], lengths: Sequence[float]
-) -> list[tuple[float, float]]:
+def segment_errors(est: Sequence[F64], truth: Sequence[F64], lengths: Sequence[float]) -> list[tuple[float, float]]:
     """(translation error / L, rotation error / L) of every segment that fits, in devkit order."""
     distances = path_distances(truth)
     errors: list[tuple[float, float]] = []
