@@ -312,3 +312,14 @@ def last_health(sub: object, done: Callable[[Health], bool], what: str) -> Healt
 
     wait_for(check, 30, what)
     return box[0]
+
+
+def test_run_and_topics_refuse_bad_arguments_with_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    from services.cli import main
+
+    assert main(["run", "tracker", "--set", "tracker.no_such_key=1"]) == 2
+    assert "unknown configuration key 'tracker.no_such_key'" in capsys.readouterr().err
+    assert main(["topics", "echo"]) == 2
+    assert "topics echo needs a KEY" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["run", "tracker", "--policy", "lifo"])
