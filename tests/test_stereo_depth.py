@@ -13,7 +13,7 @@ from common.config import Config, load_config
 from common.errors import CalibrationError, InputError
 from common.evaluation.stereo import d1_frame
 from common.geometry import camera_to_vehicle
-from common.messages import Calibration, StereoFrame
+from common.messages import Calibration, StereoFrame, decode, encode
 from services.stereo_depth import StereoDepth
 
 WIDTH, HEIGHT = 320, 240
@@ -99,6 +99,17 @@ def test_colours_are_the_left_image_pixels() -> None:
     assert np.array_equal(cloud.colors[index], frame.left[v, u])
 
 
+@pytest.mark.parametrize("sets", [{}, {"color_matching": "true", "fill_left_border": "false"}])
+def test_a_decoded_read_only_frame_gives_the_same_result(sets: dict[str, object]) -> None:
+    frame = _scene()
+    decoded = decode(encode(frame), StereoFrame)
+    assert not decoded.left.flags.writeable
+    _, expected = _core(**sets).process(frame)
+    _, got = _core(**sets).process(decoded)
+    assert np.array_equal(expected.disparity, got.disparity, equal_nan=True)
+    assert np.array_equal(decoded.left, frame.left)  # inputs untouched
+
+
 def test_fronto_parallel_wall_comes_out_flat() -> None:
     cloud, _ = _core().process(_scene())
     wall = cloud.points[cloud.points[:, 0] > 6.0]  # the box is at 4 m
@@ -179,8 +190,8 @@ def test_search_range_follows_the_calibration() -> None:
 
 @pytest.mark.timeout(120)
 def test_middlebury_cones_and_teddy() -> None:
-    """Measured 3.1 % D1-est and 87 % density (11-12 % of these pixels are occluded)."""
-    core = _core(num_disparities=64, lr_check="full", fill_support_px=0)
+    """Measured 3.8 % D1-est and 89 % density (11-12 % of these pixels are occluded in the right view)."""
+    core = _core(num_disparities=64, lr_check="full")
     for scene in ("cones", "teddy"):
         folder = shared_path("data", "middlebury", scene)
         left, right = (cv2.cvtColor(cv2.imread(str(folder / n)), cv2.COLOR_BGR2RGB) for n in ("im2.png", "im6.png"))
@@ -190,4 +201,4 @@ def test_middlebury_cones_and_teddy() -> None:
         _, disp = core.process(StereoFrame(frame_id=0, stamp_ns=0, left=left, right=right, calib=calib))
         scores = d1_frame(disp.disparity, truth)
         assert scores["d1_est_pct"] is not None and scores["d1_est_pct"] < 4.5, scores
-        assert scores["density_pct"] is not None and scores["density_pct"] > 83.0, scores
+        assert scores["density_pct"] is not None and scores["density_pct"] > 85.0, scores
