@@ -10,7 +10,6 @@ on one line, arrays shown as dtype and shape; ``hz`` prints the arrival rate onc
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
 import queue
 import threading
@@ -87,16 +86,24 @@ def schema_of(payload: bytes) -> str:
 
 
 class _Tap:
-    """Samples of one key expression handed from Zenoh's thread to the main loop."""
+    """Samples of one key expression handed from Zenoh's thread to the main loop.
 
-    def __init__(self, session: zenoh.Session, key: str) -> None:
-        self.samples: queue.Queue[tuple[str, bytes, float]] = queue.Queue(maxsize=1024)
+    ``echo`` needs the payloads, so few are queued (camera frames are megabytes each); ``hz``
+    keeps only arrival times, so it can queue many and still count a fast key.
+    """
+
+    def __init__(self, session: zenoh.Session, key: str, keep_payload: bool = True) -> None:
+        self.keep_payload = keep_payload
+        self.samples: queue.Queue[tuple[str, bytes, float]] = queue.Queue(maxsize=32 if keep_payload else 65536)
+        self.skipped = 0
         self._sub = session.declare_subscriber(key, self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        # a terminal cannot keep up with a firehose: beyond the queue, samples are skipped
-        with contextlib.suppress(queue.Full):
-            self.samples.put_nowait((str(sample.key_expr), sample.payload.to_bytes(), time.monotonic()))
+        payload = sample.payload.to_bytes() if self.keep_payload else b""
+        try:
+            self.samples.put_nowait((str(sample.key_expr), payload, time.monotonic()))
+        except queue.Full:  # a terminal cannot keep up with a firehose: count what it skips
+            self.skipped += 1
 
     def each(self, stop: threading.Event, count: int, duration: float) -> Any:
         """Yield samples until ``count`` were seen, ``duration`` passed or ``stop`` was set."""
@@ -115,19 +122,27 @@ class _Tap:
 
 
 def list_keys(session: zenoh.Session, stop: threading.Event, duration: float) -> None:
+    """Count every key heard for ``duration`` seconds (in Zenoh's thread: nothing queued), then print."""
     alive: dict[str, bool] = {}
+    seen: dict[str, list[Any]] = {}  # key -> [schema, count, first, last]
+    lock = threading.Lock()
 
     def on_token(sample: zenoh.Sample) -> None:
         alive[str(sample.key_expr)] = sample.kind == zenoh.SampleKind.PUT
 
+    def on_sample(sample: zenoh.Sample) -> None:
+        key, t = str(sample.key_expr), time.monotonic()
+        with lock:
+            if key not in seen:
+                seen[key] = [schema_of(sample.payload.to_bytes()), 0, t, t]
+            entry = seen[key]
+            entry[1] += 1
+            entry[3] = t
+
     tokens = session.liveliness().declare_subscriber("stereovox/*/alive/*", on_token, history=True)
-    tap = _Tap(session, "stereovox/**")
-    seen: dict[str, list[Any]] = {}  # key -> [schema, count, first, last]
-    for key, payload, t in tap.each(stop, 0, duration or LIST_WINDOW_S):
-        entry = seen.setdefault(key, [schema_of(payload), 0, t, t])
-        entry[1] += 1
-        entry[3] = t
-    tap.close()
+    sub = session.declare_subscriber("stereovox/**", on_sample)
+    stop.wait(duration or LIST_WINDOW_S)
+    sub.undeclare()
     tokens.undeclare()
     width = max([len(k) for k in seen] + [3])
     print(f"{'KEY':<{width}}  {'SCHEMA':<28} {'MSGS':>6} {'HZ':>8}")
@@ -159,6 +174,8 @@ def hz(tap: _Tap, stop: threading.Event, count: int, duration: float) -> None:
             gaps = np.diff(arrivals[-1000:])
             print(f"rate {1.0 / gaps.mean():.2f} Hz  min {gaps.min():.4f} s  max {gaps.max():.4f} s  "
                   f"std {gaps.std():.4f} s  window {len(gaps) + 1}", flush=True)
+    if tap.skipped:
+        print(f"(skipped {tap.skipped} messages that arrived faster than they could be counted)", flush=True)
     if len(arrivals) > 1:
         span = arrivals[-1] - arrivals[0]
         print(f"average rate {(len(arrivals) - 1) / span:.2f} Hz over {len(arrivals)} messages", flush=True)
@@ -176,7 +193,7 @@ def run(args: argparse.Namespace) -> int:
         if args.action == "list":
             list_keys(session, stop, args.duration)
             return 0
-        tap = _Tap(session, resolve_key(args.key, args.vehicle))
+        tap = _Tap(session, resolve_key(args.key, args.vehicle), keep_payload=args.action == "echo")
         try:
             (echo if args.action == "echo" else hz)(tap, stop, args.count, args.duration)
         finally:
