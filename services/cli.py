@@ -27,6 +27,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "process": ("services.pipeline", "run every stage in one process over a recording (no bus)"),
     "demo": ("services.demo", "run the whole pipeline as separate processes on the bundled recording"),
     "launch": ("services.launch", "start and supervise the services a launch spec puts on this host"),
+    "bench": ("services.bench", "measure per-stage, in-process and distributed speed, memory and CPU"),
     "router": ("services.router", "run a Zenoh router (the wheel ships no zenohd)"),
 }
 

@@ -1,0 +1,212 @@
+"""``stereovox bench``: the paper's speed claim (10 Hz at 640x480) measured on this machine, in one run.
+
+Per-stage medians of the pure cores, in-process throughput, the distributed graph (deploy/live.yaml:
+every stage its own process, the camera replayed flat out) with end-to-end latency, drops, memory
+and CPU per service, and the voxel-edge sweep of the paper's Fig. 5. Figures, never assertions:
+machines here are shared, so read medians and compare ratios taken in the same run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import socket
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from common.config import Config
+from common.messages import Health, StereoFrame, topic_of
+from common.recording import open_recording
+from services.demo import BUNDLED, REPO
+from services.launch import Supervisor
+from services.launch_spec import load_spec
+from services.pipeline import Pipeline, config_for
+
+LIVE_SPEC = REPO / "deploy" / "live.yaml"
+STAGES = ("stereo_depth", "odometry", "voxel_mapper", "tracker")
+WARMUP = 3
+
+
+def load_frames(path: Path, count: int) -> tuple[list[StereoFrame], Config]:
+    reader = open_recording(path)
+    frames = []
+    for _, msg in reader.messages(topics=["camera/stereo"]):
+        frames.append(msg)
+        if len(frames) >= count:
+            break
+    return frames, config_for(reader)
+
+
+def bench_in_process(frames: list[StereoFrame], cfg: Config) -> tuple[dict[str, Any], list[Any]]:
+    """Per-stage p50/p95 ms and frames per second of the chained cores, warm-up excluded."""
+    pipeline = Pipeline(cfg)
+    per_stage: dict[str, list[float]] = {s: [] for s in STAGES}
+    results = []
+    start = 0.0
+    for i, frame in enumerate(frames):
+        if i == WARMUP:
+            start = time.perf_counter()
+        result = pipeline.process(frame)
+        results.append(result)
+        if i >= WARMUP:
+            for stage, ms in result.stage_ms.items():
+                per_stage[stage].append(ms)
+    measured = max(1, len(frames) - WARMUP)
+    elapsed = time.perf_counter() - start
+    stages = {
+        s: {"p50_ms": float(np.median(v)), "p95_ms": float(np.percentile(v, 95))} for s, v in per_stage.items() if v
+    }
+    return {"stages": stages, "process_hz": measured / elapsed if elapsed > 0 else None}, results
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _proc_figures(pid: int, wall_s: float) -> tuple[float | None, float | None]:
+    """Peak resident memory (MB) and CPU share (% of one core) of a live process, from /proc."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+        stat = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None, None
+    hwm = next((int(line.split()[1]) for line in status.splitlines() if line.startswith("VmHWM:")), 0)
+    ticks = int(stat[11]) + int(stat[12])  # utime + stime
+    return hwm / 1024.0, 100.0 * ticks / _clock_ticks() / wall_s if wall_s > 0 else None
+
+
+def _clock_ticks() -> int:
+    import os
+
+    return int(os.sysconf("SC_CLK_TCK"))
+
+
+def bench_distributed(recording: Path, seconds: float, workdir: Path) -> dict[str, Any]:
+    """Every stage its own process (deploy/live.yaml), camera replayed flat out for ``seconds``."""
+    variables = {"port": str(_free_port()), "out": str(workdir), "recording": str(recording.resolve())}
+    spec = load_spec(LIVE_SPEC, variables)
+    sup = Supervisor(spec, host=None, log_dir=workdir / "logs", restart=False)
+    figures: dict[str, tuple[float | None, float | None]] = {}
+    try:
+        sup.start()
+        started = time.monotonic()
+        while time.monotonic() - started < seconds:
+            ended = sup.poll()
+            if ended:
+                raise RuntimeError(f"service(s) {ended} ended during the bench; logs in {workdir / 'logs'}")
+            time.sleep(0.1)
+        for name, child in sup.children.items():
+            if child.proc is not None:
+                figures[name] = _proc_figures(child.proc.pid, time.monotonic() - child.started_at)
+        sup.stop_child("camera_replay")
+        time.sleep(0.5)  # let the last frames in flight reach the recorder before it closes
+        sup.stop_child("recorder")
+    finally:
+        sup.stop()
+    return _distributed_figures(workdir / "run.mcap", figures)
+
+
+def _distributed_figures(run_path: Path, figures: dict[str, tuple[float | None, float | None]]) -> dict[str, Any]:
+    reader = open_recording(run_path)
+    e2e: list[float] = []
+    ends: list[int] = []
+    dropped: dict[str, int] = {}
+    for key, msg in reader.messages():
+        topic = topic_of(key)
+        if topic == "tracker/obstacles":
+            trail = {stage: (start, end) for stage, start, end in msg.timing}
+            if "camera_replay" in trail and "tracker" in trail:
+                e2e.append((trail["tracker"][1] - trail["camera_replay"][0]) / 1e6)
+                ends.append(trail["tracker"][1])
+        elif isinstance(msg, Health):
+            dropped[msg.service] = max(dropped.get(msg.service, 0), msg.dropped)
+    hz = (len(ends) - 1) / ((max(ends) - min(ends)) / 1e9) if len(ends) > 2 else None
+    return {
+        "distributed_hz": hz,
+        "e2e_ms": {"p50": float(np.median(e2e)), "p95": float(np.percentile(e2e, 95))} if e2e else None,
+        "dropped": {s: dropped.get(s, 0) for s in STAGES},
+        "rss_mb": {n: f[0] for n, f in figures.items()},
+        "cpu_pct": {n: f[1] for n, f in figures.items()},
+        "obstacle_frames": len(ends),
+    }
+
+
+def bench_sweep(results: list[Any], cfg: Config) -> list[dict[str, float]]:
+    from services.voxel_mapper.sweep import edge_sweep
+
+    clouds = [r.cloud for r in results]
+    egos = [r.ego for r in results]
+    return edge_sweep(clouds, egos, cfg=cfg)
+
+
+def run_bench(recording: Path, frames: int, seconds: float, plots: Path | None) -> dict[str, Any]:
+    loaded, cfg = load_frames(recording, frames)
+    print(f"bench: {len(loaded)} frames of {recording.name} at {loaded[0].left.shape[1]}x{loaded[0].left.shape[0]}",
+          file=sys.stderr)
+    report, results = bench_in_process(loaded, cfg)
+    print(f"bench: in-process {report['process_hz']:.2f} Hz", file=sys.stderr)
+    report["voxel_sweep"] = [
+        {"edge_m": r["edge_m"], "ms": r["ms"], "clusters": int(r["clusters"])} for r in bench_sweep(results, cfg)
+    ]
+    with tempfile.TemporaryDirectory(prefix="stereovox-bench-") as tmp:
+        report.update(bench_distributed(recording, seconds, Path(tmp)))
+    if plots is not None:
+        _plots(report, plots)
+    return report
+
+
+def _plots(report: dict[str, Any], folder: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from services.voxel_mapper.sweep import plot_sweep
+
+    folder.mkdir(parents=True, exist_ok=True)
+    stages = report["stages"]
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    names = list(stages)
+    ax.bar(names, [stages[n]["p50_ms"] for n in names], label="p50")
+    ax.scatter(names, [stages[n]["p95_ms"] for n in names], color="k", marker="_", s=400, label="p95")
+    ax.axhline(100, color="r", ls="--", lw=1, label="10 Hz budget")
+    ax.set_ylabel("ms per frame")
+    ax.set_title("Per-stage time of the pure cores")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(folder / "stage_latency.png", dpi=120)
+    plt.close(fig)
+    plot_sweep([{**r, "voxels": float("nan")} for r in report["voxel_sweep"]], folder / "voxel_sweep.png")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--recording", type=Path, default=BUNDLED, help="default: the bundled urban recording")
+    parser.add_argument("--frames", type=int, default=30, help="frames for the in-process figures")
+    parser.add_argument("--seconds", type=float, default=25.0, help="duration of the distributed run")
+    parser.add_argument("--json", action="store_true", help="print the figures as JSON on the last line")
+    parser.add_argument("--plots", type=Path, default=None, help="write PNGs (per-stage latency, voxel sweep) here")
+
+
+def run(args: argparse.Namespace) -> int:
+    report = run_bench(args.recording, args.frames, args.seconds, args.plots)
+    for stage, fig in report["stages"].items():
+        print(f"{stage:<14} p50 {fig['p50_ms']:7.1f} ms   p95 {fig['p95_ms']:7.1f} ms")
+    print(f"process_hz      {report['process_hz']:.2f}")
+    print(f"distributed_hz  {report['distributed_hz'] or float('nan'):.2f}")
+    if report["e2e_ms"]:
+        print(f"e2e             p50 {report['e2e_ms']['p50']:.1f} ms  p95 {report['e2e_ms']['p95']:.1f} ms")
+    print(f"dropped         {report['dropped']}")
+    print("rss_mb          " + ", ".join(f"{k} {v:.0f}" for k, v in report["rss_mb"].items() if v))
+    print("cpu_pct         " + ", ".join(f"{k} {v:.0f}" for k, v in report["cpu_pct"].items() if v))
+    for row in report["voxel_sweep"]:
+        print(f"voxel {row['edge_m']:.2f} m: {row['ms']:.1f} ms, {row['clusters']} clusters")
+    if args.json:
+        print(json.dumps({k: v for k, v in report.items() if k != "obstacle_frames"}))
+    return 0

@@ -1,0 +1,126 @@
+"""End to end: `process` (one process, no bus) and `demo` (every stage its own process over Zenoh).
+
+The two must give identical obstacles frame by frame on the same recording: lockstep replay and a
+lossless wire make the distributed run as deterministic as the in-process one.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common.messages import Obstacles
+from common.recording import open_recording
+from services.demo import BUNDLED
+from services.pipeline import process_file
+from tests.conftest import REPO, stereovox_cmd
+
+FRAMES = 30
+
+
+def _obstacle_rows(msg: Obstacles) -> list[tuple]:
+    return [
+        (o.id, o.state, o.moving, o.age, *np.round(o.centroid, 9), *np.round(o.velocity, 9)) for o in msg.obstacles
+    ]
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+    assert BUNDLED.is_file(), f"bundled recording {BUNDLED} is missing"
+    out = tmp_path_factory.mktemp("demo")
+    proc = subprocess.run(
+        [*stereovox_cmd("demo", "--max-frames", str(FRAMES), "--out", str(out), "--json")],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=400,
+        start_new_session=True,
+    )
+    assert proc.returncode == 0, f"demo failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+    report = json.loads(proc.stdout.strip().splitlines()[-1])
+    return out / "run.mcap", report
+
+
+@pytest.mark.timeout(450)
+def test_demo_runs_every_stage_and_reports(demo_run: tuple[Path, dict]) -> None:
+    run_path, report = demo_run
+    assert report["frames"] == FRAMES
+    for stage in ("stereo_depth", "odometry", "voxel_mapper", "tracker", "end_to_end"):
+        assert report["latency_ms"][stage]["p50"] > 0, stage
+    obstacles = open_recording(run_path).by_topic("tracker/obstacles")
+    assert sorted(obstacles) == list(range(FRAMES)), "one Obstacles message per input frame"
+    assert any(o.state == "tracked" for m in obstacles.values() for o in m.obstacles)
+    assert report["odometry"] is not None and report["stereo"] is not None
+
+
+@pytest.mark.timeout(450)
+def test_process_and_demo_give_identical_obstacles(demo_run: tuple[Path, dict], tmp_path: Path) -> None:
+    run_path, _ = demo_run
+    local = tmp_path / "process.mcap"
+    assert process_file(BUNDLED, local, max_frames=FRAMES, with_frames=False) == FRAMES
+    distributed = open_recording(run_path).by_topic("tracker/obstacles")
+    in_process = open_recording(local).by_topic("tracker/obstacles")
+    assert sorted(distributed) == sorted(in_process)
+    for frame_id in sorted(in_process):
+        assert _obstacle_rows(distributed[frame_id]) == _obstacle_rows(in_process[frame_id]), frame_id
+
+
+@pytest.mark.timeout(300)
+def test_demo_names_a_stage_that_dies(tmp_path: Path) -> None:
+    """SIGKILL the tracker mid-run: the demo stops every process and exits non-zero naming it."""
+    proc = subprocess.Popen(
+        stereovox_cmd("demo", "--max-frames", str(FRAMES), "--out", str(tmp_path)),
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    pids: dict[str, int] = {}
+    try:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            match = re.search(r"(\w+)\s+started pid (\d+)", line)
+            if match:
+                pids[match.group(1)] = int(match.group(2))
+            if "all services alive" in line:
+                break
+        assert "tracker" in pids, f"no tracker started: {pids}"
+        os.kill(pids["tracker"], signal.SIGKILL)
+        _, err = proc.communicate(timeout=200)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(10)
+    assert proc.returncode == 1
+    assert "stage tracker died" in err
+    for name, pid in pids.items():
+        assert not _alive(pid), f"{name} (pid {pid}) outlived the demo"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    with open(f"/proc/{pid}/stat") as f:
+        return f.read().split()[2] != "Z"
+
+
+def test_demo_refuses_a_missing_recording(tmp_path: Path) -> None:
+    proc = subprocess.run(
+        stereovox_cmd("demo", "--out", str(tmp_path), "--recording", str(tmp_path / "nothing.mcap")),
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 2
+    assert "nothing.mcap" in proc.stderr and "no such recording" in proc.stderr
