@@ -25,6 +25,9 @@ from services.stereo_depth.validation import check_frame, is_textureless
 
 T = TypeVar("T")
 
+#: matchers kept for different search ranges (one per rig in practice).
+MAX_MATCHERS: int = 4
+
 
 class StereoDepth:
     """Stereo pair in, (PointCloud, Disparity) out; matchers are built once per search range."""
@@ -47,16 +50,20 @@ class StereoDepth:
         return cls(cfg.stereo, cfg.volume)
 
     def process(self, frame: StereoFrame) -> tuple[PointCloud, Disparity]:
-        check_frame(frame)
+        check_frame(frame)  # a malformed pair or calibration raises, naming what is wrong
         self.last_timings_ms = {}
-        self.last_degenerate = is_textureless(frame.left) or is_textureless(frame.right)
-        if self.last_degenerate:
-            disparity = np.full(frame.left.shape[:2], np.nan, dtype=np.float32)
-        else:
-            disparity = self._timed("match", lambda: self._matcher(frame.calib).match(frame.left, frame.right))
-            self.last_degenerate = not bool(np.isfinite(disparity).any())
+        disparity = self._timed("match", lambda: self._disparity(frame))  # SGM at two resolutions, checked
         points, colors = self._timed("reproject", lambda: self.reprojector.points(disparity, frame.left, frame.calib))
         return self._messages(frame, points, colors, disparity)
+
+    def _disparity(self, frame: StereoFrame) -> DisparityMap:
+        """The left image's disparity; all NaN (and flagged) for a blank pair or one with no match at all."""
+        if is_textureless(frame.left) or is_textureless(frame.right):
+            self.last_degenerate = True
+            return np.full(frame.left.shape[:2], np.nan, dtype=np.float32)
+        disparity = self._matcher(frame.calib).match(frame.left, frame.right)
+        self.last_degenerate = not bool(np.isfinite(disparity).any())
+        return disparity
 
     def search_range(self, calib: Calibration) -> int:
         """Full-resolution disparities to search: down to ``min_depth_m`` unless fixed in config."""
@@ -68,6 +75,8 @@ class StereoDepth:
     def _matcher(self, calib: Calibration) -> MultiResolutionMatcher:
         disparities = self.search_range(calib)
         if disparities not in self._matchers:
+            if len(self._matchers) >= MAX_MATCHERS:  # a stream of ever-new calibrations must not grow memory
+                self._matchers.clear()
             self._matchers[disparities] = MultiResolutionMatcher.for_range(self.cfg, disparities)
         return self._matchers[disparities]
 
