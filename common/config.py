@@ -136,10 +136,10 @@ class TrackerConfig:
     moving_sigma_k: float = 1.5  # turn moving only when speed - k * speed std > moving_on_mps
     process_noise: float = 1.0  # horizontal acceleration std (m/s^2)
     process_noise_z: float = 0.1  # vertical acceleration std (m/s^2): obstacles stay on the road
-    measurement_noise: float = 0.15  # centroid std (m)
+    measurement_noise: float = 0.15  # centroid std (m) across the viewing ray, and near
+    range_noise_per_m2: float = 0.0005  # added std along the ray per squared metre of range (stereo)
     initial_speed_std: float = 5.0  # horizontal velocity std of a new track (m/s)
     initial_vertical_speed_std: float = 0.3  # its vertical velocity std (m/s)
-    extent_tolerance_voxels: float = 0.5  # box extent change (voxel edges) that triggers face-based motion
     appearance_smoothing: float = 0.5  # weight of the newest cluster in a track's colour/size/density
     frame_period_s: float = 0.1  # time step when stamps cannot give one
 

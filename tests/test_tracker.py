@@ -169,7 +169,7 @@ def test_unmatched_cluster_starts_a_new_acceptance_track() -> None:
 def test_batched_filter_matches_filterpy() -> None:
     rng = np.random.default_rng(3)
     n, dt, accel, meas = 7, 0.1, np.array([1.0, 1.0, 0.1]), 0.15
-    p0 = kalman.initial_covariance(np.full(3, meas), np.array([5.0, 5.0, 0.3]))
+    p0 = kalman.initial_covariance(np.eye(3)[None] * meas**2, np.array([5.0, 5.0, 0.3]) ** 2)[0]
     starts = rng.normal(size=(n, 3)) * 10
     x = np.hstack([starts, np.zeros((n, 3))])
     p = np.broadcast_to(p0, (n, 6, 6)).copy()

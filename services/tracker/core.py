@@ -24,12 +24,19 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from common.config import Config
+from common.config import Config, VolumeConfig
 from common.messages import Clusters, EgoMotion, Obstacle, Obstacles
 from services.tracker import kalman
 from services.tracker.association import Weights, distance_matrix, greedy_pairs
-from services.tracker.displacement import displacement
-from services.tracker.motion_state import EgoVelocity, Hysteresis, label, speed_and_sigma
+from services.tracker.measurement import stereo_covariance, touches_volume, visibility_covariance
+from services.tracker.motion_state import (
+    SLIDE_SMOOTHING,
+    EgoVelocity,
+    Hysteresis,
+    label,
+    slide_speed,
+    speed_and_sigma,
+)
 from services.tracker.observations import Observations, observe
 from services.tracker.queues import advance
 from services.tracker.track import QUEUE_NAMES, TrackTable
@@ -62,8 +69,9 @@ class Tracker:
         hysteresis: Hysteresis,
         accel_std: tuple[float, float, float],
         measurement_std: float,
+        range_noise_per_m2: float,
         initial_velocity_std: tuple[float, float, float],
-        extent_tolerance_voxels: float,
+        volume: VolumeConfig,
         appearance_smoothing: float,
         frame_period_s: float,
     ) -> None:
@@ -72,9 +80,10 @@ class Tracker:
         self.ghost_frames = ghost_frames
         self.hysteresis = hysteresis
         self.accel_std = np.asarray(accel_std, dtype=np.float64)
-        self.r = np.eye(3) * measurement_std**2
-        self.p0 = kalman.initial_covariance(np.full(3, measurement_std), np.asarray(initial_velocity_std))
-        self.extent_tolerance_voxels = extent_tolerance_voxels
+        self.measurement_std = measurement_std
+        self.range_noise_per_m2 = range_noise_per_m2
+        self.velocity_var = np.asarray(initial_velocity_std, dtype=np.float64) ** 2
+        self.volume = volume
         self.smoothing = appearance_smoothing
         self.frame_period_s = frame_period_s
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
@@ -95,8 +104,9 @@ class Tracker:
             hysteresis=Hysteresis(t.moving_on_mps, t.moving_off_mps, t.moving_sigma_k),
             accel_std=(t.process_noise, t.process_noise, t.process_noise_z),
             measurement_std=t.measurement_noise,
+            range_noise_per_m2=t.range_noise_per_m2,
             initial_velocity_std=(t.initial_speed_std, t.initial_speed_std, t.initial_vertical_speed_std),
-            extent_tolerance_voxels=t.extent_tolerance_voxels,
+            volume=cfg.volume,
             appearance_smoothing=t.appearance_smoothing,
             frame_period_s=t.frame_period_s,
         )
@@ -110,12 +120,14 @@ class Tracker:
         obs = self._observe(clusters)
         self._predict(dt)
         rows, cols = self._associate(obs)
+        pose = self._placement_pose(clusters, ego)
         if trusted:
-            self._correct(rows, obs.take(cols), clusters.voxel_edge)
+            self._correct(rows, obs.take(cols), self._measurement_cov(obs.take(cols), rows, pose, clusters.voxel_edge))
         self._advance_queues(rows, elapsed)
-        self._spawn(obs.take(np.setdiff1d(np.arange(len(obs)), cols)))
+        fresh = obs.take(np.setdiff1d(np.arange(len(obs)), cols))
+        self._spawn(fresh, self._measurement_cov(fresh, None, pose, clusters.voxel_edge))
         if trusted:
-            self._label_motion()
+            self._label_motion(clusters.voxel_edge)
         return self._report(clusters, ego)
 
     # ------------------------------------------------------------------ input guards
@@ -184,19 +196,29 @@ class Tracker:
         )  # fmt: skip
         return greedy_pairs(d, self.weights.gate)
 
-    def _correct(self, rows: NDArray, obs: Observations, voxel_edge: float) -> None:
-        """Kalman correction with the displacement the cluster's box supports (displacement.py)."""
+    @staticmethod
+    def _placement_pose(clusters: Clusters, ego: EgoMotion) -> NDArray:
+        """The vehicle pose the clusters were placed with: the egomotion's, else the mapper's."""
+        for pose in (ego.pose, clusters.ego_pose):
+            if np.isfinite(pose).all():
+                return np.asarray(pose, dtype=np.float64)
+        return np.eye(4)
+
+    def _measurement_cov(self, obs: Observations, rows: NDArray | None, pose: NDArray, voxel_edge: float) -> NDArray:
+        """How far each centroid can be trusted (measurement.py); ``rows`` = its track, None = new."""
+        cut = touches_volume(obs.bbox_min, obs.bbox_max, pose, self.volume, voxel_edge)
+        t = self.tracks
+        prev = obs.extent if rows is None else t.bbox_max[rows] - t.bbox_min[rows]
+        r = stereo_covariance(obs.centroid, pose[0:3, 3], self.measurement_std, self.range_noise_per_m2)
+        return r + visibility_covariance(obs.extent, prev, cut)
+
+    def _correct(self, rows: NDArray, obs: Observations, r: NDArray) -> None:
+        """Kalman correction of the associated tracks with their clusters' centroids."""
         if len(rows) == 0:
             return
         t = self.tracks
-        moved = displacement(
-            t.centroid[rows], t.bbox_min[rows], t.bbox_max[rows],
-            obs.centroid, obs.bbox_min, obs.bbox_max,
-            t.x[rows, 0:3] - t.anchor[rows], self.extent_tolerance_voxels * voxel_edge,
-        )  # fmt: skip
-        x, p = kalman.update(t.x[rows], t.p[rows], t.anchor[rows] + moved, self.r)
+        x, p = kalman.update(t.x[rows], t.p[rows], obs.centroid, r)
         t.x[rows], t.p[rows] = x, p
-        t.anchor[rows] = x[:, 0:3]
         t.offset[rows] = obs.centroid - x[:, 0:3]
         t.centroid[rows], t.bbox_min[rows], t.bbox_max[rows] = obs.centroid, obs.bbox_min, obs.bbox_max
         t.volume[rows] = obs.volume
@@ -206,6 +228,7 @@ class Tracker:
         t.hsl[rows, 1:3] += a * (obs.hsl[:, 1:3] - t.hsl[rows, 1:3])
         t.hsl[rows, 0] = (t.hsl[rows, 0] + a * hue_step) % 1.0
         t.extent[rows] += a * (obs.extent - t.extent[rows])
+        t.extent_slow[rows] += SLIDE_SMOOTHING * (obs.extent - t.extent_slow[rows])
         t.density[rows] += a * (obs.density - t.density[rows])
 
     def _advance_queues(self, rows: NDArray, elapsed: int) -> None:
@@ -215,7 +238,8 @@ class Tracker:
         self.counters["tracks_dropped"] += int((~keep).sum())
         self.tracks.keep(keep)
 
-    def _spawn(self, obs: Observations) -> None:
+    def _spawn(self, obs: Observations, r: NDArray) -> None:
+        """New acceptance tracks: position as trusted as its cluster, velocity unknown."""
         n = len(obs)
         if n == 0:
             return
@@ -227,8 +251,7 @@ class Tracker:
                 ids=ids,
                 queue=np.zeros(n, dtype=np.int8),
                 x=np.hstack([obs.centroid, np.zeros((n, 3))]),
-                p=np.broadcast_to(self.p0, (n, 6, 6)).copy(),
-                anchor=obs.centroid.copy(),
+                p=kalman.initial_covariance(r, self.velocity_var),
                 offset=np.zeros((n, 3)),
                 hits=np.ones(n, dtype=np.int64),
                 misses=np.zeros(n, dtype=np.int64),
@@ -237,6 +260,7 @@ class Tracker:
                 rgb=obs.rgb.copy(),
                 hsl=obs.hsl.copy(),
                 extent=obs.extent,
+                extent_slow=obs.extent,
                 density=obs.density.copy(),
                 volume=obs.volume.copy(),
                 centroid=obs.centroid.copy(),
@@ -245,10 +269,11 @@ class Tracker:
             )
         )
 
-    def _label_motion(self) -> None:
+    def _label_motion(self, voxel_edge: float) -> None:
         t = self.tracks
         speed, sigma = speed_and_sigma(t.x[:, 3:6], t.p[:, 3:6, 3:6])
-        t.moving = label(t.moving, speed, sigma, self.hysteresis)
+        slide = slide_speed(t.bbox_max - t.bbox_min, t.extent_slow, self.frame_period_s, voxel_edge)
+        t.moving = label(t.moving, speed, sigma, slide, self.hysteresis)
 
     # ------------------------------------------------------------------ output
 

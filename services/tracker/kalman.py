@@ -39,9 +39,13 @@ def process_noise(dt: float, accel_std: F64) -> F64:
     return q
 
 
-def initial_covariance(position_std: F64, velocity_std: F64) -> F64:
-    """Covariance of a track born from one cluster: position as measured, velocity unknown."""
-    return np.diag(np.concatenate([np.asarray(position_std) ** 2, np.asarray(velocity_std) ** 2]))
+def initial_covariance(position_cov: F64, velocity_var: F64) -> F64:
+    """Covariances (n, 6, 6) of tracks born from one cluster each: position as measured, velocity unknown."""
+    out = np.zeros((len(position_cov), 6, 6))
+    out[:, 0:3, 0:3] = position_cov
+    idx = np.arange(3, 6)
+    out[:, idx, idx] = velocity_var
+    return out
 
 
 def predict(x: F64, p: F64, f: F64, q: F64) -> tuple[F64, F64]:
@@ -52,7 +56,7 @@ def predict(x: F64, p: F64, f: F64, q: F64) -> tuple[F64, F64]:
 
 
 def update(x: F64, p: F64, z: F64, r: F64) -> tuple[F64, F64]:
-    """Correct ``n`` states with position measurements ``z`` (n, 3) of covariance ``r`` (3, 3).
+    """Correct ``n`` states with position measurements ``z`` (n, 3) of covariance ``r`` (3, 3) or (n, 3, 3).
 
     Joseph form, as filterpy: it keeps ``p`` symmetric positive definite in float64 however
     small the measurement noise.

@@ -2,9 +2,13 @@
 
 Speed is horizontal: ground obstacles move on the road, and the vertical velocity of a centroid is
 only the noise of what part of the object is visible. A track turns moving only once its speed is
-above ``on`` by ``k`` standard deviations, so a young track whose velocity is still a guess, or a
-parked car whose centroid is sliding, is not called moving; it turns stationary once its speed
-falls below ``off``. Between the two it keeps its label.
+above ``on`` by ``k`` standard deviations, so a young track whose velocity is still a guess is not
+called moving; it turns stationary once its speed falls below ``off``. Between the two it keeps
+its label.
+
+A box that keeps growing (a parked car's side coming into view, an occluder moving away) drags
+its centroid at up to half the growth rate while the object stands still, steadily, so no noise
+model averages it out. That slide speed is measured from the box itself and must be cleared too.
 """
 
 from __future__ import annotations
@@ -16,6 +20,10 @@ import numpy as np
 import numpy.typing as npt
 
 NDArray = npt.NDArray[Any]
+
+
+#: weight of the newest box in the slow average that measures steady growth (0.6 s at 10 Hz).
+SLIDE_SMOOTHING = 0.15
 
 
 @dataclass(frozen=True)
@@ -39,9 +47,22 @@ def speed_and_sigma(velocity: NDArray, velocity_cov: NDArray) -> tuple[NDArray, 
     return speed, np.sqrt(np.maximum(var, 0.0))
 
 
-def label(moving: NDArray, speed: NDArray, sigma: NDArray, rule: Hysteresis) -> NDArray:
+def slide_speed(extent: NDArray, extent_slow: NDArray, period_s: float, voxel_edge: float) -> NDArray:
+    """Horizontal centroid speed (n,) a steadily growing or shrinking box explains on its own.
+
+    ``extent_slow`` trails ``extent`` by ``lag`` seconds under steady growth, so their difference
+    over ``lag`` is the growth rate; half of it is the slide of a box growing on one side. A box
+    flickers by a voxel at its faces from quantisation alone, so one voxel edge of difference per
+    axis is not counted as growth.
+    """
+    lag = period_s * (1.0 - SLIDE_SMOOTHING) / SLIDE_SMOOTHING
+    growth = np.maximum(np.abs(extent - extent_slow)[:, 0:2] - voxel_edge, 0.0)
+    return 0.5 * np.linalg.norm(growth, axis=1) / lag
+
+
+def label(moving: NDArray, speed: NDArray, sigma: NDArray, slide: NDArray, rule: Hysteresis) -> NDArray:
     """New moving flags from the previous ones."""
-    turn_on = speed - rule.sigma_k * sigma > rule.on
+    turn_on = speed - rule.sigma_k * sigma - slide > rule.on
     turn_off = speed < rule.off
     return np.where(moving, ~turn_off, turn_on)
 

@@ -2,7 +2,7 @@
 
 A row is one track: its queue, its Kalman state, the appearance the association compares with
 (colour, size, density, a running mean of the clusters it took), and the last cluster's box and
-centroid, which the displacement measurement starts from.
+centroid, which the reported box and the measurement's trust are taken from.
 """
 
 from __future__ import annotations
@@ -32,8 +32,7 @@ class TrackTable:
     queue: NDArray = _empty(dtype=np.int8)
     x: NDArray = _empty(6)  # Kalman state
     p: NDArray = _empty(6, 6)  # Kalman covariance
-    anchor: NDArray = _empty(3)  # filter position right after the last correction
-    offset: NDArray = _empty(3)  # last cluster centroid minus that filter position
+    offset: NDArray = _empty(3)  # last cluster centroid minus the filter position it gave
     hits: NDArray = _empty(dtype=np.int64)  # consecutive frames seen
     misses: NDArray = _empty(dtype=np.int64)  # frames since last seen
     age: NDArray = _empty(dtype=np.int64)  # frames since birth
@@ -41,6 +40,7 @@ class TrackTable:
     rgb: NDArray = _empty(3)
     hsl: NDArray = _empty(3)
     extent: NDArray = _empty(3)
+    extent_slow: NDArray = _empty(3)  # slow average of the box extent: steady growth shows against it
     density: NDArray = _empty()
     volume: NDArray = _empty()
     centroid: NDArray = _empty(3)  # last cluster's
