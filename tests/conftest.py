@@ -103,3 +103,11 @@ def wait_for(predicate: Callable[[], bool], timeout: float, what: str, interval:
             return
         time.sleep(interval)
     pytest.fail(f"timed out after {timeout:.0f} s waiting for {what}")
+
+
+@pytest.fixture(scope="session")
+def urban_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """`stereovox simulate urban --frames 30 --seed 1` (640x480, PNG, full ground truth), made once per session."""
+    from common.scenarios.simulate import simulate_to_file
+
+    return simulate_to_file("urban", tmp_path_factory.mktemp("urban") / "urban.mcap", frames=30, seed=1)

@@ -1,0 +1,1 @@
+"""Synthetic stereo driving scenarios with exact ground truth (``stereovox simulate``)."""

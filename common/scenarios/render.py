@@ -1,0 +1,187 @@
+"""A rectified stereo pair of a world at one instant, with its exact ground truth.
+
+Both views are ray cast from their own camera centres (the right one ``baseline`` metres along
+the left camera's x axis), then shaded from the same world-anchored textures. The left view's
+depth gives the true disparity ``fx * baseline / Z``; a pixel whose point is hidden in the right
+view (the right view sees something nearer at the matching pixel) or falls outside it is NaN.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from common.geometry import camera_to_vehicle, make_pose
+from common.messages import Calibration
+from common.scenarios import raycast
+from common.scenarios.raycast import Box, Buffers, Packed
+from common.scenarios.sensor import expose
+from common.scenarios.texture import Texture
+from common.scenarios.world import Material, ThingState, World
+
+F32 = npt.NDArray[np.float32]
+F64 = npt.NDArray[np.float64]
+
+GROUND_MATERIALS = (
+    Material((0.30, 0.30, 0.31), amp=0.35, texel=0.02),  # asphalt
+    Material((0.62, 0.60, 0.56), amp=0.25, texel=0.03, phase=101.0),  # sidewalk
+    Material((0.72, 0.72, 0.70), amp=0.20, texel=0.02, phase=57.0),  # kerb
+    Material((0.34, 0.42, 0.22), amp=0.40, texel=0.03, phase=211.0),  # verge
+)
+PAINT = np.array([0.88, 0.88, 0.86], np.float32)
+#: ignore objects farther than this (m): they cover a pixel or two at most.
+DRAW_DISTANCE = 150.0
+
+
+@dataclass(frozen=True)
+class Rig:
+    """The stereo rig: pinhole intrinsics, baseline and where the left camera sits on the vehicle."""
+
+    width: int = 640
+    height: int = 480
+    focal: float = 600.0
+    baseline: float = 0.4
+    camera_height: float = 1.5
+
+    def calibration(self) -> Calibration:
+        return Calibration(
+            fx=self.focal, fy=self.focal, cx=self.width / 2, cy=self.height / 2, baseline=self.baseline,
+            width=self.width, height=self.height, cam_to_vehicle=camera_to_vehicle(self.camera_height),
+        )
+
+
+@dataclass
+class Rendered:
+    """One stereo pair and what is true about it."""
+
+    left: npt.NDArray[np.uint8]
+    right: npt.NDArray[np.uint8]
+    disparity: F32  # left image, NaN where invalid
+    depth: F32  # left camera Z, inf for sky
+    object_ids: npt.NDArray[np.int32]  # left image, -1 for ground and sky
+    visible_pixels: dict[int, int]
+    visible_fraction: dict[int, float]
+    states: list[ThingState]
+    ego_pose: F64
+
+
+class Renderer:
+    """Renders one world with one rig; per-frame work is :meth:`render`."""
+
+    def __init__(self, world: World, rig: Rig) -> None:
+        self.world = world
+        self.rig = rig
+        self.calib = rig.calibration()
+        self.texture = Texture()
+        us, vs = np.meshgrid(np.arange(rig.width, dtype=np.float32), np.arange(rig.height, dtype=np.float32))
+        self._dirs_cam = np.stack(
+            [(us - self.calib.cx) / rig.focal, (vs - self.calib.cy) / rig.focal, np.ones_like(us)], axis=-1
+        ).reshape(-1, 3)
+        self._intr = (rig.focal, rig.focal, self.calib.cx, self.calib.cy)
+
+    def camera_poses(self, ego_pose: F64) -> tuple[F64, F64]:
+        left = ego_pose @ self.calib.cam_to_vehicle
+        return left, left @ make_pose(np.eye(3), [self.rig.baseline, 0.0, 0.0])
+
+    def boxes(self, states: list[ThingState], ego_pose: F64) -> tuple[list[Box], list[tuple[float, ...]]]:
+        """World boxes of every part near enough to matter, and the surface table (rgb, amp, texel, phase)."""
+        table = [(*m.rgb, m.amp, m.texel, m.phase) for m in GROUND_MATERIALS]
+        boxes: list[Box] = []
+        for st in states:
+            if np.linalg.norm(st.pose[:2, 3] - ego_pose[:2, 3]) > DRAW_DISTANCE:
+                continue
+            rot = st.pose[:3, :3]
+            for k, part in enumerate(st.thing.parts):
+                center = st.pose[:3, 3] + rot @ np.asarray(part.center)
+                m = part.material
+                table.append((*m.rgb, m.amp, m.texel, m.phase + 53.0 * st.thing.id + 17.0 * k))
+                boxes.append(Box(center, rot, np.asarray(part.size) / 2, len(table) - 1, st.thing.id))
+        return boxes, table
+
+    def cast(self, cam_pose: F64, boxes: Packed) -> Buffers:
+        """Ground then every box whose screen rectangle is in view, nearest surface winning."""
+        origin = cam_pose[:3, 3]
+        dirs = self._dirs_cam @ cam_pose[:3, :3].T.astype(np.float32)
+        buf = raycast.cast_ground(self.world.road, origin, dirs, self.rig.focal)
+        w, h = self.rig.width, self.rig.height
+        rects = boxes.screen_rects(origin, cam_pose[:3, :3], self._intr, (0, w, 0, h))
+        raycast.cast_boxes(buf, boxes, rects, origin, dirs, w, self.rig.focal)
+        return buf
+
+    def shade(self, buf: Buffers, table: list[tuple[float, ...]], cam_pose: F64) -> F32:
+        """Linear RGB 0..1: texture around each surface's colour, road paint, face light, sky."""
+        look = self.world.look
+        tab = np.asarray(table, np.float32)
+        img = np.empty((len(buf.depth), 3), np.float32)
+        solid = buf.surface >= 0
+        surf = buf.surface[solid]
+        noise = self.texture.sample(buf.u[solid], buf.v[solid], tab[surf, 4], buf.footprint[solid], tab[surf, 5])
+        colour = tab[surf, :3] * (1.0 + look.contrast * tab[surf, 3] * noise)[:, None]
+        paint = buf.paint[solid][:, None]
+        colour = colour * (1 - paint) + PAINT * paint
+        img[solid] = colour * buf.light[solid][:, None]
+        sky = ~solid
+        up = (self._dirs_cam[sky] @ cam_pose[:3, :3].T)[:, 2] / np.linalg.norm(self._dirs_cam[sky], axis=1)
+        mix = np.clip(up * 3.0, 0.0, 1.0)[:, None]
+        img[sky] = np.array([0.85, 0.88, 0.92], np.float32) * (1 - mix) + np.array([0.45, 0.6, 0.85]) * mix
+        return (img * look.brightness).reshape(self.rig.height, self.rig.width, 3)
+
+    def render(self, t: float, rng: np.random.Generator) -> Rendered:
+        """The pair at time ``t``; ``rng`` drives sensor noise only."""
+        ego = self.world.ego_pose(t)
+        states = self.world.states(t)
+        box_list, table = self.boxes(states, ego)
+        boxes = Packed.of(box_list)
+        cam_l, cam_r = self.camera_poses(ego)
+        buf_l = self.cast(cam_l, boxes)
+        buf_r = self.cast(cam_r, boxes)
+        look = self.world.look
+        left = expose(self.shade(buf_l, table, cam_l), 1.0, look, rng)
+        right = expose(self.shade(buf_r, table, cam_r), look.exposure_ratio, look, rng)
+        shape = (self.rig.height, self.rig.width)
+        disparity = self.true_disparity(buf_l.depth.reshape(shape), buf_r.depth.reshape(shape))
+        ids = buf_l.obj.reshape(shape)
+        pixels, fractions = self.visibility(ids, boxes, cam_l)
+        return Rendered(left, right, disparity, buf_l.depth.reshape(shape), ids, pixels, fractions, states, ego)
+
+    def true_disparity(self, depth_l: F32, depth_r: F32) -> F32:
+        """``fx * B / Z`` of the left view, NaN where the right view cannot see the same point."""
+        w = depth_l.shape[1]
+        with np.errstate(divide="ignore"):
+            disp = (self.rig.focal * self.rig.baseline / depth_l).astype(np.float32)
+        cols = np.arange(w, dtype=np.float32)[None, :] - disp
+        inside = np.isfinite(depth_l) & (cols >= -0.5) & (cols <= w - 0.5)
+        ci = np.clip(np.rint(np.nan_to_num(cols, nan=0.0)), 0, w - 1).astype(np.int64)
+        seen = np.take_along_axis(depth_r, ci, axis=1)
+        unoccluded = seen >= depth_l * 0.98 - 0.05
+        return np.where(inside & unoccluded, disp, np.float32(np.nan)).astype(np.float32)
+
+    def visibility(
+        self, ids: npt.NDArray[np.int32], boxes: Packed, cam_pose: F64
+    ) -> tuple[dict[int, int], dict[int, float]]:
+        """Visible pixels per object, and their share of the object's whole projected area.
+
+        The projected area counts what lies outside the image too (up to one image size beyond
+        each border), sampled on a grid coarse enough to stay cheap for big objects.
+        """
+        counts = np.bincount(ids[ids >= 0].ravel(), minlength=1)
+        pixels = {int(i): int(c) for i, c in enumerate(counts) if c > 0}
+        fractions: dict[int, float] = {}
+        w, h = self.rig.width, self.rig.height
+        origin, rot = cam_pose[:3, 3], cam_pose[:3, :3]
+        rects = boxes.screen_rects(origin, rot, self._intr, (-w, 2 * w, -h, 2 * h))
+        for obj in pixels:
+            index = np.flatnonzero(boxes.objs == obj)
+            r = rects[index]
+            r = r[(r[:, 1] > r[:, 0]) & (r[:, 3] > r[:, 2])]
+            if len(r) == 0:
+                continue
+            x0, x1, y0, y1 = int(r[:, 0].min()), int(r[:, 1].max()), int(r[:, 2].min()), int(r[:, 3].max())
+            step = max(1, math.ceil(math.sqrt((x1 - x0) * (y1 - y0) / 40000)))
+            hits = raycast.coverage(boxes.take(index), origin, rot, self._intr, (x0, x1, y0, y1), step)
+            area = float(hits * step * step)
+            fractions[obj] = min(1.0, pixels[obj] / area) if area > 0 else 0.0
+        return pixels, fractions

@@ -1,0 +1,119 @@
+"""Furnishing a road: frontage (buildings, walls, kiosks), poles and bins, parked cars, walkers.
+
+Each kind of object draws from its own random stream (seeded by the scenario seed and the kind),
+so a seed fixes the whole street and adding one kind of object does not reshuffle the others.
+Objects are laid out along the whole stretch the ego can reach, independent of how many frames
+are rendered, so a short run is the beginning of a long one.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from common.scenarios import props
+from common.scenarios.road import Road
+from common.scenarios.world import Path, Thing
+
+Gap = tuple[float, float]
+
+
+class Street:
+    """Collects the objects of one scenario and hands out ids in order."""
+
+    def __init__(self, seed: int, road: Road) -> None:
+        self.seed = seed
+        self.road = road
+        self.things: list[Thing] = []
+
+    def rng(self, stream: int) -> np.random.Generator:
+        return np.random.default_rng([self.seed, stream])
+
+    def add(self, make: Callable[..., Thing], *args: object) -> Thing:
+        thing = make(len(self.things) + 1, *args)
+        self.things.append(thing)
+        return thing
+
+    def frontage(self, side: int, s_from: float, s_to: float, gaps: tuple[Gap, ...] = ()) -> None:
+        """Buildings, walls and kiosks along the back of one sidewalk (side +1 left, -1 right)."""
+        rng = self.rng(10 + side)
+        back = self.road.half_width + self.road.sidewalk
+        s = s_from
+        while s < s_to:
+            kind = rng.choice(["building", "wall", "kiosk"], p=[0.45, 0.4, 0.15])
+            if kind == "building":
+                length, depth, height = rng.uniform(8, 20), rng.uniform(7, 11), rng.uniform(6, 14)
+                d, size, cls = back + 0.3 + depth / 2, (length, depth, height), "building"
+                rgb, amp = props.pick(rng, props.FACADES), 0.2
+            elif kind == "wall":
+                length, height = rng.uniform(6, 15), rng.uniform(1.6, 2.6)
+                d, size, cls = back + 0.15, (length, 0.3, height), "wall"
+                rgb, amp = props.pick(rng, props.WALLS), 0.35
+            else:
+                length, depth, height = rng.uniform(2.5, 4), rng.uniform(1.5, 2.0), rng.uniform(2.4, 3.0)
+                d, size, cls = back - depth / 2 - 0.1, (length, depth, height), "kiosk"
+                rgb, amp = props.pick(rng, props.CAR_COLOURS + props.FACADES), 0.25
+            mid = s + length / 2
+            if not any(a - length / 2 < mid < b + length / 2 for a, b in gaps):
+                self.add(props.box, cls, Path(mid, side * d), size, rgb, amp)
+            s += length + rng.uniform(1.0, 6.0)
+
+    def furniture(self, side: int, s_from: float, s_to: float, gaps: tuple[Gap, ...] = ()) -> None:
+        """Poles at the kerb and bins beside them."""
+        rng = self.rng(20 + side)
+        s = s_from + rng.uniform(0, 8)
+        while s < s_to:
+            if not _in_gaps(s, gaps):
+                d = side * (self.road.half_width + 0.4)
+                height = rng.uniform(3.0, 5.0)
+                self.add(props.box, "pole", Path(s, d), (0.16, 0.16, height), props.pick(rng, props.WALLS), 0.2, 0.01)
+                if rng.random() < 0.5:
+                    colour = props.pick(rng, ((0.2, 0.4, 0.25), (0.3, 0.3, 0.3), (0.6, 0.5, 0.2)))
+                    bin_path = Path(s + rng.uniform(1.0, 3.0), side * (self.road.half_width + 0.6))
+                    self.add(props.box, "bin", bin_path, (0.6, 0.6, 1.0), colour, 0.25, 0.01)
+            s += rng.uniform(10, 22)
+
+    def parked(self, side: int, s_from: float, s_to: float, gaps: tuple[Gap, ...] = (), share: float = 0.65) -> None:
+        """Parked cars in the parking strip; some take the colour of the walls behind them."""
+        rng = self.rng(30 + side)
+        d = side * (self.road.half_width - 1.1)
+        s = s_from + rng.uniform(0, 5)
+        while s < s_to:
+            if rng.random() < share and not _in_gaps(s, gaps):
+                palette = props.WALLS if rng.random() < 0.2 else props.CAR_COLOURS
+                yaw = 0.0 if side < 0 else math.pi
+                self.add(props.car, Path(s, d, yaw=yaw), props.pick(rng, palette))
+            s += rng.uniform(5.5, 9.0)
+
+    def walkers(self, side: int, s_from: float, s_to: float, moving_share: float = 0.7,
+                spacing: tuple[float, float] = (7.0, 15.0)) -> None:
+        """Pedestrians on a sidewalk, walking either way at 1.1-1.7 m/s or standing still."""
+        rng = self.rng(40 + side)
+        s = s_from + rng.uniform(0, 6)
+        while s < s_to:
+            d = side * (self.road.half_width + rng.uniform(0.7, 2.0))
+            clothes = props.pick(rng, props.CLOTHES)
+            legs = clothes if rng.random() < 0.4 else props.pick(rng, props.CLOTHES[:3])
+            if rng.random() < moving_share:
+                speed = rng.uniform(1.1, 1.7) * (1 if rng.random() < 0.6 else -1)
+                path = Path(s, d, vs=speed, yaw=0.0 if speed > 0 else math.pi)
+            else:
+                path = Path(s, d, yaw=rng.uniform(-math.pi, math.pi))
+            self.add(props.pedestrian, path, clothes, legs)
+            s += rng.uniform(*spacing)
+
+    def street(self, s_from: float, s_to: float, gaps: tuple[Gap, ...] = (), parking: bool = True,
+               spacing: tuple[float, float] = (7.0, 15.0)) -> None:
+        """Both sides of an ordinary city street; ``spacing`` is the gap between walkers (m)."""
+        for side in (-1, 1):
+            self.frontage(side, s_from, s_to, gaps)
+            self.furniture(side, s_from, s_to, gaps)
+            if parking:
+                self.parked(side, s_from, s_to, gaps)
+            self.walkers(side, s_from, s_to, spacing=spacing)
+
+
+def _in_gaps(s: float, gaps: tuple[Gap, ...]) -> bool:
+    return any(a <= s <= b for a, b in gaps)

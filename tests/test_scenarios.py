@@ -1,0 +1,130 @@
+"""The synthetic scenarios: camera geometry, truth disparity against a real matcher, determinism,
+every scenario rendering with ground truth, and clear errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from common.errors import ConfigError
+from common.geometry import invert
+from common.messages import GroundTruthDisparity, GroundTruthObjects, StereoFrame
+from common.recording import open_recording
+from common.scenarios.catalogue import SCENARIOS, build
+from common.scenarios.raycast import Packed
+from common.scenarios.render import Renderer, Rig
+from common.scenarios.road import Road
+from common.scenarios.simulate import frame_messages, simulate_to_file
+from common.scenarios.world import EgoProfile, Look, Material, Part, Thing, World
+from common.scenarios.world import Path as RoadPath
+from services.cli import main as cli_main
+
+
+def _one_box_world() -> World:
+    """A flat road and one 1 x 1 x 3.03 m box whose near face is 10 m ahead, 0.513..1.513 m to the left.
+
+    Edges fall between pixel centres, so no pixel sits exactly on a boundary.
+    """
+    part = Part((0.0, 0.0, 1.515), (1.0, 1.0, 3.03), Material((0.8, 0.2, 0.2)))
+    thing = Thing(1, "wall", (part,), (1.0, 1.0, 3.03), RoadPath(10.5, 1.013))
+    look = Look(noise_sigma=0.0, blur_sigma=0.0)
+    return World("test", Road(y0=0.0), (thing,), EgoProfile((0.0, 1.0), (0.0, 0.0), d=0.0), look)
+
+
+def test_known_point_appears_at_predicted_pixel_and_disparity() -> None:
+    rig = Rig()
+    renderer = Renderer(_one_box_world(), rig)
+    out = renderer.render(0.0, np.random.default_rng(0))
+    # near face at Z = 10 m, camera x from -1.513 to -0.513 m -> u = 600 * X / 10 + 320 in [229.2, 269.2];
+    # beyond it the inner side face (y = 0.513 m, Z 10..11 m) shows up to u = 320 - 307.8 / 11 = 292.0
+    row = out.object_ids[240]
+    assert row[229] == -1 and row[230] == 1 and row[291] == 1 and row[293] == -1
+    assert out.depth[240, 250] == pytest.approx(10.0, abs=1e-4)
+    assert out.disparity[240, 250] == pytest.approx(600 * 0.4 / 10.0, abs=1e-3)
+    # the box's top (z = 3.03 m, 1.53 m above the camera) is at v = 240 - 600 * 1.53 / 10 = 148.2
+    column = out.object_ids[:, 250]
+    assert column[148] == -1 and column[149] == 1
+    # the right camera sees the same face shifted left by the disparity, 24 px: from u = 205.2
+    _, right_pose = renderer.camera_poses(out.ego_pose)
+    right = renderer.cast(right_pose, Packed.of(renderer.boxes(out.states, out.ego_pose)[0]))
+    right_row = right.obj.reshape(rig.height, rig.width)[240]
+    assert right_row[205] == -1 and right_row[206] == 1
+    assert out.visible_fraction[1] == pytest.approx(1.0, abs=0.02)
+
+
+@pytest.mark.timeout(120)
+def test_truth_disparity_agrees_with_block_matching_where_textured() -> None:
+    fm = next(iter(frame_messages("urban", 1, seed=1, image_format="raw")))
+    left = cv2.cvtColor(fm.stereo.left, cv2.COLOR_RGB2GRAY)
+    right = cv2.cvtColor(fm.stereo.right, cv2.COLOR_RGB2GRAY)
+    sgbm = cv2.StereoSGBM.create(minDisparity=0, numDisparities=128, blockSize=5, P1=8 * 25, P2=32 * 25,
+                                 uniquenessRatio=10, disp12MaxDiff=1, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+    estimate = sgbm.compute(left, right).astype(np.float32) / 16.0
+    truth = fm.disparity.disparity
+    texture = cv2.blur(np.abs(cv2.Sobel(left, cv2.CV_32F, 1, 0)), (7, 7))
+    usable = np.isfinite(truth) & (estimate > 0) & (texture > 8.0)
+    assert usable.mean() > 0.3, "too little textured, matched area to judge"
+    within = np.abs(estimate[usable] - truth[usable]) <= 1.0
+    assert within.mean() > 0.9, f"only {within.mean():.1%} within 1 px"
+
+
+def test_same_scenario_and_seed_give_identical_bytes(tmp_path: Path) -> None:
+    a = simulate_to_file("hanging", tmp_path / "a.mcap", frames=2, seed=7, size=(320, 240))
+    b = simulate_to_file("hanging", tmp_path / "b.mcap", frames=2, seed=7, size=(320, 240))
+    c = simulate_to_file("hanging", tmp_path / "c.mcap", frames=2, seed=8, size=(320, 240))
+    assert a.read_bytes() == b.read_bytes()
+    assert a.read_bytes() != c.read_bytes()
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("name", list(SCENARIOS))
+def test_every_scenario_renders_with_ground_truth(name: str, tmp_path: Path) -> None:
+    out = simulate_to_file(name, tmp_path / f"{name}.mcap", frames=2, seed=3, size=(320, 240), image_format="jpeg")
+    rec = open_recording(out)
+    info = rec.info()
+    assert info["source"] == "synthetic" and info["scenario"] == name and info["gt_complete"] is True
+    assert info["frames"] == 2 and info["calib"]["width"] == 320
+    frames = rec.by_topic("camera/stereo")
+    assert sorted(frames) == [0, 1]
+    frame = frames[1]
+    assert isinstance(frame, StereoFrame) and frame.left.shape == (240, 320, 3)
+    assert frame.stamp_ns - frames[0].stamp_ns == 100_000_000
+    disparity = rec.by_topic("groundtruth/disparity")[1]
+    assert isinstance(disparity, GroundTruthDisparity) and disparity.disparity.shape == (240, 320)
+    assert 0.3 < np.isfinite(disparity.disparity).mean() < 1.0
+    objects = rec.by_topic("groundtruth/objects")[1]
+    assert isinstance(objects, GroundTruthObjects) and objects.gt_complete
+    visible = [o for o in objects.objects if o.visible_pixels >= 50 and o.visible_fraction >= 0.5]
+    assert len(visible) >= 3
+    pose = rec.by_topic("groundtruth/ego")[0].pose
+    np.testing.assert_allclose(pose, np.eye(4), atol=1e-9)
+
+
+@pytest.mark.parametrize("name", list(SCENARIOS))
+@pytest.mark.parametrize("seed", [0, 5])
+def test_moving_objects_stay_in_the_volume_at_clear_speeds(name: str, seed: int) -> None:
+    world = build(name, seed)
+    frames_with_movers = 0
+    for k in range(10, 100, 5):
+        t = k / 10
+        to_vehicle = invert(world.ego_pose(t))
+        movers = 0
+        for st in world.states(t):
+            speed = float(np.linalg.norm(st.velocity))
+            assert (st.moving and speed >= 1.0) or (not st.moving and speed == 0.0), st.thing
+            x, y, z = to_vehicle[:3, :3] @ st.center + to_vehicle[:3, 3]
+            if st.moving and 0 <= x <= 28.7 and abs(y) <= 8.2 and 0 <= z <= 3.5:
+                movers += 1
+        frames_with_movers += movers >= 1
+    assert frames_with_movers >= 15, f"{name}: moving objects in the volume in only {frames_with_movers}/18 frames"
+
+
+def test_unknown_scenario_is_a_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(ConfigError, match="valid: urban, crossing"):
+        simulate_to_file("moon", tmp_path / "x.mcap", frames=1, seed=0)
+    assert cli_main(["simulate", "moon", "--out", str(tmp_path / "x.mcap")]) == 2
+    assert "urban" in capsys.readouterr().err
+    assert not (tmp_path / "x.mcap").exists()
