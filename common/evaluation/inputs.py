@@ -124,6 +124,11 @@ def _cluster_boxes(msg: Clusters) -> FrameClusters:
     return FrameClusters(np.array(msg.ego_pose, dtype=np.float64), boxes)
 
 
+#: disparity images kept while waiting for their pair; a recording writes a frame's estimate and
+#: truth close together, and most estimates have no truth at all (synthetic truth every n-th frame).
+PENDING_IMAGES: int = 32
+
+
 class _Reader:
     """Dispatches each decoded message to where it belongs in :class:`RunInputs`."""
 
@@ -158,6 +163,9 @@ class _Reader:
             self._score_stereo(fid)
 
     def _score_stereo(self, fid: int) -> None:
+        for pending in (self.pending_est, self.pending_truth):
+            while len(pending) > PENDING_IMAGES:
+                del pending[min(pending)]
         if fid in self.pending_est and fid in self.pending_truth:
             est, truth = self.pending_est.pop(fid), self.pending_truth.pop(fid)
             if est.shape == truth.shape:
