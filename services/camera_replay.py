@@ -24,7 +24,7 @@ import zenoh
 
 from common.bus import Publisher, declare_alive, open_session, subscribe, watch_alive
 from common.config import Config
-from common.errors import BusError, ConfigError
+from common.errors import BusError, ConfigError, DecodeError
 from common.messages import IMAGE_FORMATS, Obstacles, StereoFrame, decode, encode, key_for, now_ns, topic_of
 from common.recording import RawRecord, RecordingReader, open_recording, peek_stamp
 from services.health import HealthReporter, StageHealth
@@ -42,6 +42,7 @@ class ReplayStats:
     other: int = 0  # ground truth and any other replayed message
     passes: int = 0
     lockstep_timeouts: int = 0
+    skipped: int = 0  # messages that did not decode
     truncated: str = ""
 
 
@@ -116,14 +117,18 @@ class Replay:
                 frame_id, stamp = self.renumber.apply(*header) if header else (None, rec.publish_time_ns)
                 if max_frames and self.stats.frames >= max_frames and (frame_id is None or frame_id > last_id):
                     break
-                if topic == CAMERA_TOPIC and frame_id is not None:
-                    self._await_obstacles()
-                    self.pacer.wait(stamp)
-                    self._publish_frame(rec, frame_id, stamp)
-                    last_id = frame_id
-                else:
-                    self.pacer.wait(stamp)
-                    self._publish_other(rec, topic, frame_id, stamp)
+                try:
+                    if topic == CAMERA_TOPIC:
+                        self._await_obstacles()
+                        self.pacer.wait(stamp)
+                        last_id = self._publish_frame(rec, frame_id, stamp)
+                    else:
+                        self.pacer.wait(stamp)
+                        self._publish_other(rec, topic, frame_id, stamp)
+                except DecodeError as exc:  # one bad message in a recording: say which, skip it
+                    self.stats.skipped += 1
+                    self.health.errors += 1
+                    log.warning("skipped a message on %s (log time %d): %s", rec.key, rec.log_time_ns, exc)
             else:
                 self._end_of_pass()
                 if loop and self.stats.frames:
@@ -145,9 +150,12 @@ class Replay:
             pub = self.pubs[topic] = Publisher(self.session, key_for(topic, self.cfg.bus.vehicle))
         return pub
 
-    def _publish_frame(self, rec: RawRecord, frame_id: int, stamp: int) -> None:
+    def _publish_frame(self, rec: RawRecord, frame_id: int | None, stamp: int) -> int:
+        """Decode, renumber, give a fresh timing trail, publish; returns the frame id sent."""
         start = time.perf_counter()
         frame = decode(rec.data, StereoFrame)
+        if frame_id is None:  # the header peek failed but the message decodes: number it from its body
+            frame_id, stamp = self.renumber.apply(frame.frame_id, frame.stamp_ns)
         t = now_ns()
         frame = dataclasses.replace(
             frame, frame_id=frame_id, stamp_ns=stamp, timing=[("camera_replay", t, t)],
@@ -158,6 +166,7 @@ class Replay:
         self.health.frames_out += 1
         self.health.processed((time.perf_counter() - start) * 1e3)
         self._pending = frame_id
+        return frame_id
 
     def _publish_other(self, rec: RawRecord, topic: str, frame_id: int | None, stamp: int) -> None:
         data = rec.data
@@ -215,9 +224,10 @@ def run_replay(
     finally:
         replay.close()
         token.undeclare()
+    truncated = f"; TRUNCATED: {stats.truncated}" if stats.truncated else ""
     print(
         f"replay done: {stats.frames} frames, {stats.other} other messages, {stats.passes} passes, "
-        f"{stats.lockstep_timeouts} lockstep timeouts" + (f"; TRUNCATED: {stats.truncated}" if stats.truncated else ""),
+        f"{stats.lockstep_timeouts} lockstep timeouts, {stats.skipped} skipped{truncated}",
         flush=True,
     )
     return stats

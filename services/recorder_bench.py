@@ -116,7 +116,8 @@ def bench_bus(data: list[bytes], compression: str, folder: Path, when_full: str 
     written = h.detail.get("written_by_topic", {}).get("camera/stereo", 0)
     return {"what": f"bus/{when_full}", "compression": compression, "frames": len(data), "written": written,
             "dropped": h.dropped, "mb_per_s": written * (size / len(data)) / 1e6 / elapsed,
-            "publish_mb_per_s": size / 1e6 / put_s}
+            "publish_mb_per_s": size / 1e6 / put_s, "callback_us": h.detail.get("callback_us_mean"),
+            "write_p50_ms": h.p50_ms, "write_p95_ms": h.p95_ms}
 
 
 def run_bench(frames: int = 100, compressions: tuple[str, ...] = tuple(COMPRESSIONS), image_dir: Path | None = None,

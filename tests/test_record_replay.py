@@ -18,10 +18,10 @@ from conftest import Processes, free_port, stereovox_cmd, wait_for
 from fake_recording import CALIB, write_recording
 from mcap.reader import make_reader
 
-from common.bus import Publisher, declare_alive, open_session
+from common.bus import Publisher, declare_alive, open_session, watch_alive
 from common.config import BusConfig
 from common.messages import Health, Message, Obstacles, StereoFrame, decode, key_for
-from common.recording import open_recording
+from common.recording import RecordingWriter, open_recording, peek_stamp
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -36,6 +36,7 @@ class Hub:
     session: zenoh.Session
     endpoint: str
     health: dict[str, Health] = field(default_factory=dict)
+    alive: set[str] = field(default_factory=set)
 
     def listen(self, key: str, on_msg: Callable[[str, Message, int], None]) -> zenoh.Subscriber:
         def handler(sample: zenoh.Sample) -> None:
@@ -59,16 +60,23 @@ def hub() -> Iterator[Hub]:
             assert isinstance(msg, Health)
             h.health[msg.service] = msg
 
+        def on_alive(service: str, up: bool) -> None:
+            (h.alive.add if up else h.alive.discard)(service)
+
         sub = h.listen(key_for("health/*"), on_health)
+        watcher = watch_alive(session, "ego", on_alive)
         yield h
+        watcher.undeclare()
         sub.undeclare()
 
 
 def wait_line(processes: Processes, proc: subprocess.Popen[bytes], text: str, timeout: float = 40.0) -> None:
     def seen() -> bool:
+        if text in processes.log(proc):
+            return True
         if proc.poll() is not None:
             pytest.fail(f"process exited with {proc.returncode} before printing {text!r}:\n{processes.log(proc)}")
-        return text in processes.log(proc)
+        return False
 
     wait_for(seen, timeout, repr(text))
 
@@ -77,6 +85,9 @@ def start_recorder(processes: Processes, hub: Hub, out: Path, *extra: str) -> su
     cmd = stereovox_cmd("record", "--out", str(out), "--connect", hub.endpoint, "--set", "health_period_s=0.2", *extra)
     proc = processes.start(cmd, "recorder")
     wait_line(processes, proc, "recorder ready")
+    # "ready" means subscribed in its own session; the token, declared after the subscriber, reaching
+    # the router means the router knows the subscription too, so nothing the test publishes is lost.
+    wait_for(lambda: "recorder" in hub.alive, 20, "the recorder's liveliness token")
     return proc
 
 
@@ -158,7 +169,9 @@ def test_unwritable_path_fails_clearly(tmp_path: Path, processes: Processes, hub
 
 def test_full_disk_stops_the_recorder_not_the_pipeline(tmp_path: Path, processes: Processes, hub: Hub) -> None:
     """/dev/full refuses every write with ENOSPC: the recorder must exit naming it; traffic flows on."""
-    recorder = start_recorder(processes, hub, Path("/dev/full"), "--set", "recorder.flush_interval_s=0.2")
+    cmd = stereovox_cmd("record", "--out", "/dev/full", "--connect", hub.endpoint,
+                        "--set", "recorder.flush_interval_s=0.2")
+    recorder = processes.start(cmd, "recorder")
     assert recorder.wait(40) == 2
     log = processes.log(recorder)
     assert "/dev/full" in log and "No space left on device" in log and "Traceback" not in log
@@ -281,6 +294,21 @@ def test_truncated_recording_replays_its_readable_part(tmp_path: Path, processes
     assert "WARNING" in log and str(source) in log and "at byte" in log and "TRUNCATED" in log
 
 
+def test_a_corrupt_frame_is_skipped_and_reported(tmp_path: Path, processes: Processes) -> None:
+    source = tmp_path / "corrupt.mcap"
+    write_recording(source, 3)
+    with RecordingWriter(tmp_path / "with_bad.mcap") as w:
+        for rec in open_recording(source).raw():
+            w.write(rec.key, rec.data, rec.log_time_ns, rec.publish_time_ns)
+            if rec.key == CAMERA and peek_stamp(rec.data) == (1, rec.publish_time_ns):
+                w.write(CAMERA, b"\x81\xa6schema\xa5bogus", rec.log_time_ns)  # decodes to nothing known
+    replay = processes.start(stereovox_cmd("replay", str(tmp_path / "with_bad.mcap"), "--max"), "replay")
+    assert replay.wait(60) == 0
+    log = processes.log(replay)
+    assert "replay done: 3 frames, 6 other messages, 1 passes, 0 lockstep timeouts, 1 skipped" in log
+    assert f"skipped a message on {CAMERA}" in log and "unknown schema" in log
+
+
 def test_not_mcap_is_named_and_exits_2(tmp_path: Path) -> None:
     bogus = tmp_path / "bogus.mcap"
     bogus.write_text("these are notes, not a recording")
@@ -295,7 +323,7 @@ def test_split_by_size_names_parts_and_keeps_every_message(tmp_path: Path, proce
                               "--compression", "none", "--mode", "peer")
     publish_frames(hub, 40)  # ~0.75 MB of frames: four parts of 0.2 MB (plus at most a chunk each)
     wait_for(lambda: hub.written("camera/stereo") == 40, 30, "the recorder to write every frame")
-    assert processes.stop(recorder, signal.SIGINT) == 0, processes.log(recorder)
+    assert processes.stop(recorder, signal.SIGTERM) == 0, processes.log(recorder)  # SIGTERM finishes files too
     parts = sorted(tmp_path.glob("run_*.mcap"), key=lambda p: int(p.stem.split("_")[1]))
     assert not out.exists() and len(parts) >= 3
     assert [p.name for p in parts] == [f"run_{i}.mcap" for i in range(len(parts))]
