@@ -14,16 +14,13 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import inspect
 import logging
 import signal
 import threading
-from types import FrameType, ModuleType
-from typing import Any
+from types import FrameType
 
 from common.bus import QUEUE_POLICIES, open_session
 from common.config import Config, load_config
-from common.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
@@ -54,6 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
     parser.add_argument("--policy", choices=QUEUE_POLICIES, default="newest",
                         help="input queue: newest (live, drops and counts) or fifo (lockstep, no drops)")
+    parser.add_argument("--max-frames", type=int, default=0, metavar="N", help="exit after N frames out (0 = never)")
 
 
 def bus_config(args: argparse.Namespace, sets: list[str] | None = None, file: str | None = None) -> Config:
@@ -66,13 +64,6 @@ def bus_config(args: argparse.Namespace, sets: list[str] | None = None, file: st
     if args.mode:
         cfg.bus.mode = args.mode
     return cfg
-
-
-def _entry(module: ModuleType, service: str) -> Any:
-    entry = getattr(module, "run", None)
-    if entry is None or not callable(entry):
-        raise ConfigError(f"service {service!r} ({module.__name__}) has no run(cfg, session, stop)")
-    return entry
 
 
 def stop_on_signals() -> threading.Event:
@@ -91,12 +82,10 @@ def stop_on_signals() -> threading.Event:
 def run(args: argparse.Namespace) -> int:
     cfg = bus_config(args, args.sets, args.config)
     module = importlib.import_module(SERVICES[args.service])
-    entry = _entry(module, args.service)
-    extra = {"policy": args.policy} if "policy" in inspect.signature(entry).parameters else {}
     stop = stop_on_signals()
     with open_session(cfg.bus) as session:
         listen = cfg.bus.listen or ("-" if cfg.bus.mode == "client" else "an ephemeral loopback port")
         log.info("%s: joined the bus as %s (listen %s, connect %s)", args.service, cfg.bus.mode, listen,
                  cfg.bus.connect or "-")
-        entry(cfg, session, stop, **extra)
+        module.run(cfg, session, stop, policy=args.policy, max_frames=args.max_frames)
     return 0

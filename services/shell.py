@@ -172,8 +172,9 @@ def run_stage(
     stop: threading.Event,
     policy: str = "newest",
     depth: int = 8,
+    max_frames: int = 0,
 ) -> StageHealth:
-    """Run ``stage`` on ``session`` until ``stop`` is set; returns its final counters."""
+    """Run ``stage`` on ``session`` until ``stop`` is set (or ``max_frames`` are out); returns its counters."""
     vehicle = cfg.bus.vehicle
     loop = StageLoop(stage, cfg, session, policy, depth)
     health_pub = Publisher(session, key_for(f"health/{stage.name}", vehicle))
@@ -184,7 +185,7 @@ def run_stage(
                 "%s ready: %s -> %s (policy %s, vehicle %s)",
                 stage.name, ", ".join(stage.inputs), ", ".join(stage.outputs), policy, vehicle,
             )
-            while not stop.is_set():
+            while not stop.is_set() and not 0 < max_frames <= loop.health.frames_out:
                 loop.step()
     finally:
         token.undeclare()

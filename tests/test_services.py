@@ -267,7 +267,8 @@ def test_four_stage_processes_answer_every_frame_in_lockstep_with_the_whole_trai
     clouds = subscribe(session, key_for("stereo_depth/points"), PointCloud, "fifo", depth=16)
     health = {s: subscribe(session, key_for(f"health/{s}"), Health, "newest") for s in stages}
     started_ms = time.time_ns() // 1_000_000
-    procs = {s: start_service(processes, s, port, "--policy", "fifo") for s in stages}
+    short = {"tracker": ["--max-frames", "5"]}  # the tracker ends on its own after five frames
+    procs = {s: start_service(processes, s, port, "--policy", "fifo", *short.get(s, [])) for s in stages}
     wait_for(lambda: set(stages) <= alive or any(p.poll() is not None for p in procs.values()), 120,
              "all four stages' liveliness tokens")
     assert all(p.poll() is None for p in procs.values()), {s: processes.log(p)[-2000:] for s, p in procs.items()}
@@ -295,9 +296,10 @@ def test_four_stage_processes_answer_every_frame_in_lockstep_with_the_whole_trai
     assert reports["stereo_depth"].detail["degenerate"] >= 1
     assert reports["voxel_mapper"].errors == 0 and reports["tracker"].errors == 0
     assert all(r.dropped == 0 and r.decode_errors == 0 and r.p50_ms > 0 for r in reports.values()), reports
+    wait_for(lambda: procs["tracker"].poll() is not None, 30, "the tracker to exit after --max-frames 5")
     for s, p in procs.items():
         assert processes.stop(p, signal.SIGTERM) == 0, processes.log(p)[-2000:]
-        assert f"{s} ready" in processes.log(p)
+        assert f"{s} ready" in processes.log(p) and f"{s} stopped: 5 frames out" in processes.log(p)
 
 
 def last_health(sub: object, done: Callable[[Health], bool], what: str) -> Health:

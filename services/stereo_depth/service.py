@@ -53,5 +53,7 @@ def stage(cfg: Config) -> Stage:
     )
 
 
-def run(cfg: Config, session: zenoh.Session, stop: threading.Event, policy: str = "newest") -> None:
-    run_stage(stage(cfg), cfg, session, stop, policy)
+def run(
+    cfg: Config, session: zenoh.Session, stop: threading.Event, policy: str = "newest", max_frames: int = 0
+) -> None:
+    run_stage(stage(cfg), cfg, session, stop, policy, max_frames=max_frames)
