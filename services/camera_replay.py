@@ -84,10 +84,14 @@ class Replay:
         self.stats = ReplayStats()
         self.renumber = Renumbering()
         self.pacer = Pacer(0.0 if rc.lockstep else rc.rate, stop)
-        self.topics = [zenoh.KeyExpr(t) for t in rc.topics]
+        try:
+            self.topics = [zenoh.KeyExpr(t) for t in rc.topics]
+        except zenoh.ZError as exc:
+            raise ConfigError(f"replay.topics {rc.topics!r}: not valid key expressions ({exc})") from None
         self.pubs: dict[str, Publisher] = {}
+        # FIFO, not newest: every report is taken, so Health shows no "dropped" obstacles that were merely superseded
         self.obstacles = (
-            subscribe(session, key_for("tracker/obstacles", cfg.bus.vehicle), Obstacles, "newest")
+            subscribe(session, key_for("tracker/obstacles", cfg.bus.vehicle), Obstacles, "fifo", depth=64)
             if rc.lockstep
             else None
         )
