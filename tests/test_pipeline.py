@@ -15,12 +15,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import REPO, stereovox_cmd
 
 from common.messages import Obstacles
 from common.recording import open_recording
 from services.demo import BUNDLED
 from services.pipeline import process_file
-from tests.conftest import REPO, stereovox_cmd
 
 FRAMES = 30
 
