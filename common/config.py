@@ -65,7 +65,7 @@ class StereoConfig:
     coarse_uniqueness: int = 15  # half-resolution pass, whose pixels also fill holes
     speckle_window: int = 100
     speckle_range: int = 2
-    lr_check: str = "coarse"  # coarse (right view at half resolution) | full | off
+    lr_check: str = "coarse"  # coarse (right view at half resolution) | full | none
     lr_max_diff_px: float = 1.0  # pixels of the coarser of the two disparity maps compared
     fill_support_px: int = 5  # holes take the coarse value if within the fine ones this near (px); 0 = off
     pre_filter_cap: int = 63

@@ -10,7 +10,7 @@ import pytest
 from conftest import shared_path
 
 from common.config import Config, load_config
-from common.errors import CalibrationError, InputError
+from common.errors import CalibrationError, ConfigError, InputError
 from common.evaluation.stereo import d1_frame
 from common.geometry import camera_to_vehicle
 from common.messages import Calibration, StereoFrame, decode, encode
@@ -179,6 +179,12 @@ def test_blank_pair_gives_an_empty_cloud_and_then_recovers(value: int) -> None:
     assert disp.disparity.shape == (HEIGHT, WIDTH) and np.isnan(disp.disparity).all()
     cloud, _ = core.process(_scene())
     assert not core.last_degenerate and len(cloud.points) > 1000
+
+
+@pytest.mark.parametrize("setting", [{"lr_check": "sideways"}, {"mode": "fast"}, {"block_size": 4}, {"min_depth_m": 0}])
+def test_bad_configuration_is_refused_at_construction(setting: dict[str, object]) -> None:
+    with pytest.raises(ConfigError):
+        _core(**setting)
 
 
 def test_search_range_follows_the_calibration() -> None:

@@ -19,7 +19,7 @@ from common.errors import ConfigError
 from services.stereo_depth.consistency import left_right_check, upsample, within_neighbours
 from services.stereo_depth.sgbm import DisparityMap, Image, SgbmParams, SgbmPass, round_up_16
 
-LR_MODES: tuple[str, ...] = ("coarse", "full", "off")
+LR_MODES: tuple[str, ...] = ("coarse", "full", "none")
 #: coarse pixels this close to the fine range's end are trusted over the fine pass.
 NEAR_MARGIN_PX: float = 4.0
 
@@ -94,7 +94,7 @@ class MultiResolutionMatcher:
         small_left, small_right = half(left), half(right)
         disp_left = self.coarse.left(small_left, small_right)
         disp_right = self.coarse.right(small_left, small_right)
-        if self.lr_check != "off":
+        if self.lr_check != "none":
             disp_left = left_right_check(disp_left, disp_right, self.lr_max_diff_px)
         scale = left.shape[1] / small_left.shape[1]
         shape = (left.shape[0], left.shape[1])
