@@ -77,9 +77,9 @@ class Renderer:
         self.calib = rig.calibration()
         self.texture = Texture()
         us, vs = np.meshgrid(np.arange(rig.width, dtype=np.float32), np.arange(rig.height, dtype=np.float32))
-        self._dirs_cam = np.stack(
-            [(us - self.calib.cx) / rig.focal, (vs - self.calib.cy) / rig.focal, np.ones_like(us)], axis=-1
-        ).reshape(-1, 3)
+        # camera-frame ray directions (a, b, 1) per pixel, row-major
+        self._a = ((us - self.calib.cx) / rig.focal).ravel()[:, None]
+        self._b = ((vs - self.calib.cy) / rig.focal).ravel()[:, None]
         self._intr = (rig.focal, rig.focal, self.calib.cx, self.calib.cy)
 
     def camera_poses(self, ego_pose: F64) -> tuple[F64, F64]:
@@ -101,10 +101,15 @@ class Renderer:
                 boxes.append(Box(center, rot, np.asarray(part.size) / 2, len(table) - 1, st.thing.id))
         return boxes, table
 
+    def world_dirs(self, cam_pose: F64) -> F32:
+        """Per-pixel ray directions in the world (camera z component 1, so t is depth)."""
+        rot = cam_pose[:3, :3].astype(np.float32)
+        return self._a * rot[:, 0] + self._b * rot[:, 1] + rot[:, 2]
+
     def cast(self, cam_pose: F64, boxes: Packed) -> Buffers:
         """Ground then every box whose screen rectangle is in view, nearest surface winning."""
         origin = cam_pose[:3, 3]
-        dirs = self._dirs_cam @ cam_pose[:3, :3].T.astype(np.float32)
+        dirs = self.world_dirs(cam_pose)
         buf = raycast.cast_ground(self.world.road, origin, dirs, self.rig.focal)
         w, h = self.rig.width, self.rig.height
         rects = boxes.screen_rects(origin, cam_pose[:3, :3], self._intr, (0, w, 0, h))
@@ -124,7 +129,9 @@ class Renderer:
         colour = colour * (1 - paint) + PAINT * paint
         img[solid] = colour * buf.light[solid][:, None]
         sky = ~solid
-        up = (self._dirs_cam[sky] @ cam_pose[:3, :3].T)[:, 2] / np.linalg.norm(self._dirs_cam[sky], axis=1)
+        a, b = self._a[sky, 0], self._b[sky, 0]
+        rot = cam_pose[:3, :3]
+        up = (a * rot[2, 0] + b * rot[2, 1] + rot[2, 2]) / np.sqrt(a * a + b * b + 1)
         mix = np.clip(up * 3.0, 0.0, 1.0)[:, None]
         img[sky] = np.array([0.85, 0.88, 0.92], np.float32) * (1 - mix) + np.array([0.45, 0.6, 0.85]) * mix
         return (img * look.brightness).reshape(self.rig.height, self.rig.width, 3)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
+from numba import njit
 
 F32 = npt.NDArray[np.float32]
 
@@ -51,22 +52,25 @@ class Texture:
         ``texel`` is the surface's texel size (m), ``footprint`` the size one pixel covers there,
         ``phase`` a per-surface offset in texels so surfaces of one material do not look cloned.
         """
-        level = np.clip(np.rint(np.log2(np.maximum(footprint / texel, 1.0))), 0, LEVELS - 1).astype(np.int64)
-        x = u / texel + phase
-        y = v / texel + phase * 0.37
-        x0f = np.floor(x)
-        y0f = np.floor(y)
-        fx = (x - x0f).astype(np.float32)
-        fy = (y - y0f).astype(np.float32)
-        mask = SIZE - 1
-        x0 = x0f.astype(np.int64) & mask
-        y0 = y0f.astype(np.int64) & mask
-        x1 = (x0 + 1) & mask
-        y1 = (y0 + 1) & mask
-        base = level * (SIZE * SIZE)
-        r0 = base + y0 * SIZE
-        r1 = base + y1 * SIZE
-        flat = self._flat
+        out = np.empty(len(u), np.float32)
+        _sample(self._flat, u, v, texel, footprint, phase, out)
+        return out
+
+
+@njit(cache=True, nogil=True)
+def _sample(flat, u, v, texel, footprint, phase, out):  # pragma: no cover - compiled
+    mask = SIZE - 1
+    for i in range(len(u)):
+        ratio = max(footprint[i] / texel[i], 1.0)
+        level = min(max(int(np.rint(np.log2(ratio))), 0), LEVELS - 1)
+        x = u[i] / texel[i] + phase[i]
+        y = v[i] / texel[i] + phase[i] * 0.37
+        x0f, y0f = np.floor(x), np.floor(y)
+        fx, fy = x - x0f, y - y0f
+        x0, y0 = int(x0f) & mask, int(y0f) & mask
+        x1, y1 = (x0 + 1) & mask, (y0 + 1) & mask
+        base = level * SIZE * SIZE
+        r0, r1 = base + y0 * SIZE, base + y1 * SIZE
         top = flat[r0 + x0] * (1 - fx) + flat[r0 + x1] * fx
         bottom = flat[r1 + x0] * (1 - fx) + flat[r1 + x1] * fx
-        return (top * (1 - fy) + bottom * fy).astype(np.float32)
+        out[i] = top * (1 - fy) + bottom * fy
