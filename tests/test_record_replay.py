@@ -270,9 +270,10 @@ def test_loop_keeps_frame_ids_increasing(tmp_path: Path, processes: Processes, h
         stamps = [s for _, s, _ in got[key]]
         assert ids == list(range(15)), key
         assert all(b > a for a, b in itertools.pairwise(stamps)), key
-    # at 4x the recorded 10 Hz, 15 frames cannot go out in less than 14 periods of 25 ms
-    arrivals = [t for _, _, t in got[CAMERA]]
-    assert arrivals[-1] - arrivals[0] >= 0.9 * 14 * 25e6
+    # at 4x the recorded 10 Hz, 15 frames cannot go out in less than 14 periods of 25 ms (their trails
+    # carry the publish times, so delivery jitter on a loaded machine cannot shorten the span)
+    published = [f.timing[0][1] for f in frames]
+    assert published[-1] - published[0] >= 0.95 * 14 * 25e6  # (--max would take a few ms)
     assert "2 passes" in processes.log(replay)  # two whole passes and part of a third
     recorded = [m for _, m in open_recording(source).messages(keys=[CAMERA])]
     for i, f in enumerate(frames):
