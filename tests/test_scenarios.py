@@ -53,6 +53,11 @@ def test_known_point_appears_at_predicted_pixel_and_disparity() -> None:
     right_row = right.obj.reshape(rig.height, rig.width)[240]
     assert right_row[205] == -1 and right_row[206] == 1
     assert out.visible_fraction[1] == pytest.approx(1.0, abs=0.02)
+    # row 320 left of the box: road at Z = 600 * 1.5 / 80 = 11.25 m (disparity 21.33), hidden from the
+    # right camera by the box (disparity 24) over 24 - 21.33 = 2.67 px left of its edge at u = 229.2
+    band = out.disparity[320]
+    assert np.isnan(band[227:230]).all()
+    assert band[225] == pytest.approx(21.333, abs=0.01)
 
 
 @pytest.mark.timeout(120)
