@@ -169,11 +169,16 @@ def test_bad_input_raises_a_clear_error(change: dict[str, object], error: type[E
     assert len(str(info.value)) > 20
 
 
-@pytest.mark.parametrize("value", [0, 255])
-def test_blank_pair_gives_an_empty_cloud_and_then_recovers(value: int) -> None:
+@pytest.mark.parametrize(("value", "noise"), [(0, 0.0), (255, 0.0), (5, 2.0)])
+def test_blank_pair_gives_an_empty_cloud_and_then_recovers(value: int, noise: float) -> None:
+    """All black, all white, and black with independent sensor noise (which SGM would half-match)."""
     core = _core()
-    blank = np.full((HEIGHT, WIDTH, 3), value, np.uint8)
-    cloud, disp = core.process(dataclasses.replace(_scene(), left=blank, right=blank.copy()))
+    rng = np.random.default_rng(3)
+
+    def blank() -> np.ndarray:
+        return np.clip(rng.normal(value, noise, (HEIGHT, WIDTH, 3)), 0, 255).astype(np.uint8)
+
+    cloud, disp = core.process(dataclasses.replace(_scene(), left=blank(), right=blank()))
     assert core.last_degenerate
     assert cloud.points.shape == (0, 3) and cloud.colors.shape == (0, 3)
     assert disp.disparity.shape == (HEIGHT, WIDTH) and np.isnan(disp.disparity).all()
