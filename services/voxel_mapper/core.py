@@ -91,7 +91,9 @@ class VoxelMapper:
     def _above_road(self, road: Ground, pose: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
         """Voxels inside the volume of interest and above the road, judged in this vehicle frame."""
         vol = self.volume
-        local = (self.map.centroids - pose[:3, 3]) @ pose[:3, :3]  # world -> vehicle frame
+        offset = self.map.centroids - pose[:3, 3]
+        rot = pose[:3, :3]  # world -> vehicle frame is offset @ rot, written out to stay off BLAS threads
+        local = offset[:, 0:1] * rot[0] + offset[:, 1:2] * rot[1] + offset[:, 2:3] * rot[2]
         height = road.height(local)
         return ((self.map.counts >= self.min_points) & (height > self.clearance) & (height <= vol.z_max)
                 & (local[:, 0] >= vol.x_min) & (local[:, 0] <= vol.x_max) & (np.abs(local[:, 1]) <= vol.y_half))

@@ -100,7 +100,7 @@ class TerrainProfile:
                 continue
             peak = lo + int(np.argmax(smooth[i, lo:hi]))
             near = slice(max(0, peak - 2), min(self.nz, peak + 3))
-            height = float(hist[i, near] @ centres[near] / max(hist[i, near].sum(), 1))
+            height = float(np.sum(hist[i, near] * centres[near]) / max(hist[i, near].sum(), 1))
             g_prev, x_prev = float(np.clip(height, g_prev - reach, g_prev + reach)), x
             self.ground[i], found[i] = g_prev, True
         self.ground = np.interp(self.xs, self.xs[found], self.ground[found]) if found.any() else np.zeros(self.nx)
@@ -116,6 +116,7 @@ class TerrainProfile:
                 break
             yn, rn = y[near], resid[near]
             ym, rm = yn.mean(), rn.mean()
-            cross = float(((yn - ym) @ (rn - rm)) / max(float((yn - ym) @ (yn - ym)), 1e-9))
+            dy = yn - ym  # sums, not BLAS dot products: BLAS threads stall on a loaded machine
+            cross = float(np.sum(dy * (rn - rm)) / max(float(np.sum(dy * dy)), 1e-9))
             offset = rm - cross * ym
         return float(np.clip(cross, -self.max_cross, self.max_cross))

@@ -32,7 +32,8 @@ GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 
 # Columns of the per-voxel sums.
 COUNT, XYZ, RGB, RGB2, HSL, HSL2 = 0, slice(1, 4), slice(4, 7), slice(7, 10), slice(10, 13), slice(13, 16)
-N_STATS = 16
+HITS = 16  # points of the latest frame that hit the voxel
+N_STATS = 17
 
 
 @numba.njit(cache=True, inline="always")
@@ -134,7 +135,10 @@ def _insert(points: npt.NDArray[np.float32], colors: npt.NDArray[np.uint8], rot:
         st[13] += hue * hue
         st[14] += sat * sat
         st[15] += light * light
-        last_seen[s] = frame
+        if last_seen[s] != frame:
+            st[16] = 0.0
+            last_seen[s] = frame
+        st[16] += 1.0
     return n, points.shape[0]
 
 
@@ -223,6 +227,11 @@ class VoxelMap:
     @property
     def counts(self) -> F64:
         return self.stats[: self.n, COUNT]
+
+    @property
+    def hits(self) -> F64:
+        """Points of the latest frame per voxel (0 for a voxel only kept by the decay)."""
+        return np.where(self.last_seen[: self.n] == self.frame, self.stats[: self.n, HITS], 0.0)
 
     @property
     def centroids(self) -> F64:
