@@ -22,7 +22,7 @@ import numpy as np
 from common.config import Config
 from common.messages import Health, StereoFrame, topic_of
 from common.recording import open_recording
-from services.demo import BUNDLED, REPO
+from services.demo import BUNDLED, REPO, recording_settings
 from services.launch import Supervisor
 from services.launch_spec import load_spec
 from services.pipeline import Pipeline, config_for
@@ -92,7 +92,8 @@ def bench_distributed(recording: Path, seconds: float, workdir: Path) -> dict[st
     """Every stage its own process (deploy/live.yaml), camera replayed flat out for ``seconds``."""
     variables = {"port": str(_free_port()), "out": str(workdir), "recording": str(recording.resolve())}
     spec = load_spec(LIVE_SPEC, variables)
-    sup = Supervisor(spec, host=None, log_dir=workdir / "logs", restart=False)
+    settings = recording_settings(open_recording(recording).info())
+    sup = Supervisor(spec, host=None, log_dir=workdir / "logs", restart=False, extra_args=settings)
     figures: dict[str, tuple[float | None, float | None]] = {}
     try:
         sup.start()

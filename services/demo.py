@@ -41,6 +41,14 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def recording_settings(info: dict[str, Any]) -> list[str]:
+    """What a recording says of itself that every service must agree on (KITTI's longer volume)."""
+    volume = info.get("volume")
+    if not isinstance(volume, dict):
+        return []
+    return [arg for key, value in volume.items() for arg in ("--set", f"volume.{key}={value}")]
+
+
 def run_demo(recording: Path, out: Path, max_frames: int | None, timeout_s: float | None = None) -> Path:
     """Run the whole graph over ``recording``; returns the path of the run's recording."""
     info = open_recording(recording).info()
@@ -56,7 +64,7 @@ def run_demo(recording: Path, out: Path, max_frames: int | None, timeout_s: floa
         "max_frames": str(frames),
     }
     spec = load_spec(LOCAL_SPEC, variables)
-    sup = Supervisor(spec, host=None, log_dir=out / "logs", restart=False)
+    sup = Supervisor(spec, host=None, log_dir=out / "logs", restart=False, extra_args=recording_settings(info))
     deadline = time.monotonic() + (timeout_s or 120.0 + 5.0 * frames)
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}

@@ -12,7 +12,9 @@ import argparse
 import contextlib
 import logging
 import os
+import re
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -56,11 +58,19 @@ class Child:
         return self.proc is not None and self.proc.poll() is None
 
 
-def service_argv(spec: LaunchSpec, svc: ServiceSpec) -> list[str]:
+def service_argv(spec: LaunchSpec, svc: ServiceSpec, extra: list[str] | None = None) -> list[str]:
     """The command line of a service: its stereovox sub-command, as a client of the spec's router."""
     argv = [sys.executable, "-m", "services.cli", *svc.command, "--mode", "client"]
     argv += ["--connect", spec.router_endpoint(), "--set", f"bus.vehicle={spec.vehicle}"]
-    return argv
+    return argv + list(extra or [])
+
+
+def endpoint_address(endpoint: str) -> tuple[str, int]:
+    """``tcp/127.0.0.1:7447`` -> ("127.0.0.1", 7447)."""
+    match = re.fullmatch(r"(?:tcp|tls)/\[?([^\]]+?)\]?:(\d+)", endpoint)
+    if not match:
+        raise ConfigError(f"router endpoint {endpoint!r} is not tcp/HOST:PORT or tls/HOST:PORT")
+    return match.group(1), int(match.group(2))
 
 
 def router_argv(spec: LaunchSpec) -> list[str]:
@@ -71,8 +81,15 @@ class Supervisor:
     """Starts, watches, restarts and stops the children of one host."""
 
     def __init__(
-        self, spec: LaunchSpec, host: str | None, log_dir: Path, restart: bool = True, env: dict[str, str] | None = None
+        self,
+        spec: LaunchSpec,
+        host: str | None,
+        log_dir: Path,
+        restart: bool = True,
+        env: dict[str, str] | None = None,
+        extra_args: list[str] | None = None,
     ) -> None:
+        """``extra_args`` go to every service (e.g. ``--set volume.x_max=45`` for a KITTI run)."""
         self.spec = spec
         self.host = host
         self.log_dir = log_dir
@@ -83,7 +100,8 @@ class Supervisor:
         if host is None or spec.router_host == host:
             self.children[ROUTER] = Child(ROUTER, router_argv(spec), "always", log_dir / "router.log")
         for svc in spec.on_host(host):
-            self.children[svc.name] = Child(svc.name, service_argv(spec, svc), svc.restart, log_dir / f"{svc.name}.log")
+            argv = service_argv(spec, svc, extra_args)
+            self.children[svc.name] = Child(svc.name, argv, svc.restart, log_dir / f"{svc.name}.log")
         self.sources = {s.name for s in spec.on_host(host) if s.source}
         self.alive: set[str] = set()
         self._alive_lock = threading.Lock()
@@ -105,6 +123,7 @@ class Supervisor:
         """Router first, then every service but the sources; the sources once the others are alive."""
         if ROUTER in self.children:
             self._spawn(self.children[ROUTER])
+            self._wait_router(wait_alive_s)
         others = [c for n, c in self.children.items() if n != ROUTER and n not in self.sources]
         for child in others:
             self._spawn(child)
@@ -130,6 +149,21 @@ class Supervisor:
             raise ConfigError(f"services not alive after {wait_alive_s:.0f} s: {missing}; see {self.log_dir}")
         for name in self.sources:
             self._spawn(self.children[name])
+
+    def _wait_router(self, timeout_s: float) -> None:
+        """Clients that start before the router listens fail their first connect: wait for its port."""
+        host, port = endpoint_address(self.spec.router_endpoint())
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            router = self.children[ROUTER]
+            if router.proc is not None and router.proc.poll() is not None:
+                raise ConfigError(f"router exited with {router.proc.returncode}; see {router.log_path}")
+            try:
+                with socket.create_connection((host, port), timeout=0.5):
+                    return
+            except OSError:
+                time.sleep(0.05)
+        raise ConfigError(f"router not listening on {host}:{port} after {timeout_s:.0f} s")
 
     def poll(self) -> list[str]:
         """Restart what crashed (policy and backoff permitting); returns names that ended for good."""
