@@ -133,3 +133,35 @@ def test_unknown_scenario_is_a_clear_error(tmp_path: Path, capsys: pytest.Captur
     assert cli_main(["simulate", "moon", "--out", str(tmp_path / "x.mcap")]) == 2
     assert "urban" in capsys.readouterr().err
     assert not (tmp_path / "x.mcap").exists()
+
+
+def _footprint(center: np.ndarray, rotation: np.ndarray, length: float, width: float) -> np.ndarray:
+    signs = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]], float)
+    return center + (signs * [length / 2, width / 2]) @ rotation.T
+
+
+def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
+    """Separating-axis test of two convex quadrilaterals (corners in order)."""
+    for poly in (a, b):
+        for i in range(4):
+            edge = poly[(i + 1) % 4] - poly[i]
+            normal = np.array([-edge[1], edge[0]])
+            pa, pb = a @ normal, b @ normal
+            if pa.max() < pb.min() or pb.max() < pa.min():
+                return False
+    return True
+
+
+@pytest.mark.parametrize("name", list(SCENARIOS))
+def test_ego_never_drives_through_an_object(name: str) -> None:
+    """Traffic and walkers are timed around the ego; only overhead structures may span its path."""
+    world = build(name, seed=2)
+    for k in range(0, 150, 3):
+        t = k / 10
+        ego = world.ego_pose(t)
+        ego_box = _footprint(ego[:2, 3] + ego[:2, :2] @ [1.5, -0.25], ego[:2, :2], 4.4, 1.8)
+        for st in world.states(t):
+            if st.thing.cls in ("sign", "barrier"):
+                continue
+            box = _footprint(st.pose[:2, 3], st.pose[:2, :2], st.thing.size[0], st.thing.size[1])
+            assert not _overlap(ego_box, box), f"frame {k}: ego overlaps {st.thing.cls} {st.thing.id}"

@@ -78,9 +78,9 @@ def crossing(seed: int) -> World:
                     t_start=start, t_end=start + width / speed, yaw=-side * math.pi / 2)
         street.add(props.pedestrian, path, props.pick(rng, props.CLOTHES), props.pick(rng, props.CLOTHES[:3]))
     # cars crossing on the side road, one each way, while the ego stands
-    for side, start in ((-1, 1.05), (1, 4.05)):
+    for side, start, lane in ((-1, 1.05, 47.6), (1, 4.05, 44.4)):
         v = rng.uniform(6.0, 8.0)
-        path = Path(46.0, side * 35.0, vd=-side * v, t_start=start, t_end=start + 70.0 / v, yaw=-side * math.pi / 2)
+        path = Path(lane, side * 35.0, vd=-side * v, t_start=start, t_end=start + 70.0 / v, yaw=-side * math.pi / 2)
         street.add(props.car, path, props.pick(rng, props.CAR_COLOURS))
     # a lorry queueing in the oncoming lane, beside the stopped ego: a third of the view
     street.add(props.truck, Path(rng.uniform(24.0, 26.0), 1.7, yaw=math.pi), props.pick(rng, props.FACADES))
@@ -89,7 +89,8 @@ def crossing(seed: int) -> World:
 
 
 def overtake(seed: int) -> World:
-    markings = (Marking(-3.5, period=9.0, on=3.0), Marking(0.0), Marking(3.5, period=9.0, on=3.0))
+    # three lanes one way (ego in the middle) and one lane oncoming, beyond a solid line
+    markings = (Marking(-3.5, period=9.0, on=3.0), Marking(0.0, period=9.0, on=3.0), Marking(3.5))
     road = Road(y0=1.75, half_width=7.0, curve_start=90.0, radius=-300.0, markings=markings)
     street = Street(seed, road)
     rng = street.rng(1)
@@ -100,13 +101,12 @@ def overtake(seed: int) -> World:
     same = (
         (props.car, rng.uniform(14, 18), -5.25, rng.uniform(7.5, 8.5)),  # overtaken: 4 m/s slower
         (props.truck, rng.uniform(34, 40), -5.25, rng.uniform(9.5, 10.5)),  # overtaken slowly
-        (props.car, rng.uniform(-10, -6), -5.25, rng.uniform(15.5, 16.5)),  # overtakes the ego
-        (props.car, rng.uniform(17, 22), -1.75, rng.uniform(12.8, 13.2)),  # lead car, same speed
+        (props.car, rng.uniform(-10, -6), 1.75, rng.uniform(15.5, 16.5)),  # overtakes the ego on the left
+        (props.car, rng.uniform(17, 22), -1.75, rng.uniform(12.8, 13.2)),  # lead car, about the same speed
     )
     for make, s0, d, v in same:
         street.add(make, Path(s0, d, vs=v), props.pick(rng, props.CAR_COLOURS))
-    _oncoming(street, 1.75, 2, (7.0, 8.5), 30.0)
-    _oncoming(street, 5.25, 3, (7.0, 8.5), 45.0)
+    _oncoming(street, 5.25, 2, (7.0, 8.5), 30.0)
     ego = EgoProfile((0.0, 30.0), (12.0, 12.0), d=-1.75)
     return World("overtake", road, tuple(street.things), ego)
 
@@ -153,7 +153,7 @@ SCENARIOS: dict[str, Scenario] = {
         Scenario("urban", "city street, ego 9-11.5 m/s on a bend; parked and moving cars, walkers, a cyclist", urban),
         Scenario("crossing", "stop-and-go at a zebra: walkers and two cars cross ahead; a lorry fills a third "
                  "of the view", crossing),
-        Scenario("overtake", "four lanes at 12 m/s: overtaking, overtaken, lead and oncoming traffic "
+        Scenario("overtake", "three lanes one way at 12 m/s: overtaking, overtaken, lead and oncoming traffic "
                  "(0-20 m/s relative)", overtake),
         Scenario("hanging", "an overhanging sign, a height barrier over the road, U-shaped (concave) fences", hanging),
         Scenario("slope", "6 % climb to a crest and down again: the flat-road assumption fails", slope),
