@@ -1,0 +1,1 @@
+"""Importers of real stereo datasets (KITTI raw, tracking, odometry; Middlebury) into recordings."""

@@ -1,0 +1,61 @@
+"""KITTI tracking training sequences: colour stereo, OXTS ego motion and label_02 objects.
+
+Layout: ``training/{image_02,image_03}/NNNN/NNNNNN.png``, ``label_02/NNNN.txt``,
+``oxts/NNNN.txt`` (one packet per frame) and ``calib/NNNN.txt``. The label and OXTS files cover
+the whole sequence; only frames with images are imported. Tracking has no timestamps file, so
+frames are 100 ms apart (the benchmark's 10 Hz).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from common.datasets import kitti_calib, oxts
+from common.datasets.export import FRAME_RATE_HZ, recording_info, write_frames
+from common.datasets.images import image_size, paired_files
+from common.datasets.kitti_labels import frame_truth, read_labels
+from common.datasets.sequence import StereoSequence, frame_numbers
+from common.errors import InputError
+from common.messages import GroundTruthObjects
+
+F64 = npt.NDArray[np.float64]
+
+FRAME_NS = int(1e9 / FRAME_RATE_HZ)
+
+
+@dataclass
+class TrackingSequence:
+    sequence: StereoSequence
+    truth: dict[int, GroundTruthObjects]
+
+
+def load(training: Path, sequence: str, max_frames: int | None = None) -> TrackingSequence:
+    """Calibration, true poses and labelled objects of one sequence; images are read when written."""
+    rig = kitti_calib.load_tracking(training / "calib" / f"{sequence}.txt")
+    pairs = paired_files(training / "image_02" / sequence, training / "image_03" / sequence)[:max_frames]
+    frames = frame_numbers(pairs)
+    oxts_file = training / "oxts" / f"{sequence}.txt"
+    packets = oxts.read_packet_lines(oxts_file)
+    if len(packets) <= max(frames):
+        raise InputError(f"{oxts_file}: {len(packets)} packets, frame {max(frames)} has images")
+    packets = packets[frames]
+    cam_to_vehicle = rig.cam_to_vehicle()
+    poses = oxts.vehicle_poses(packets, rig.imu_to_cam2(), cam_to_vehicle)
+    velocities = oxts.world_velocities(packets, poses, cam_to_vehicle @ rig.imu_to_cam2())
+    stamps = [frame * FRAME_NS for frame in frames]
+    stereo = StereoSequence(frames, stamps, pairs, rig.calibration(*image_size(pairs[0][0])), poses, velocities)
+    labels = read_labels(training / "label_02" / f"{sequence}.txt")
+    truth = frame_truth(labels, frames, stamps, poses, cam_to_vehicle @ rig.cam0_to_cam2())
+    return TrackingSequence(stereo, truth)
+
+
+def import_sequence(training: Path, sequence: str, out: Path, max_frames: int | None = None) -> int:
+    """Write one tracking sequence to ``out``; returns the frames written."""
+    loaded = load(training, sequence, max_frames)
+    seq = loaded.sequence
+    info = recording_info("kitti-tracking", sequence, len(seq.frames), seq.calib)
+    return write_frames(out, info, seq.messages(lambda frame: [loaded.truth[frame]]), f"import tracking {sequence}")
