@@ -17,6 +17,7 @@ import numpy.typing as npt
 from common.geometry import camera_to_vehicle, make_pose
 from common.messages import Calibration
 from common.scenarios import raycast
+from common.scenarios.ground import cast_ground
 from common.scenarios.raycast import Box, Buffers, Packed
 from common.scenarios.sensor import expose
 from common.scenarios.texture import Texture
@@ -110,7 +111,7 @@ class Renderer:
         """Ground then every box whose screen rectangle is in view, nearest surface winning."""
         origin = cam_pose[:3, 3]
         dirs = self.world_dirs(cam_pose)
-        buf = raycast.cast_ground(self.world.road, origin, dirs, self.rig.focal)
+        buf = cast_ground(self.world.road, origin, dirs, self.rig.focal)
         w, h = self.rig.width, self.rig.height
         rects = boxes.screen_rects(origin, cam_pose[:3, :3], self._intr, (0, w, 0, h))
         raycast.cast_boxes(buf, boxes, rects, origin, dirs, w, self.rig.focal)
