@@ -249,3 +249,83 @@ def test_cli_exits_2_naming_the_file(small_training: Path, tmp_path: Path, capsy
     assert cli_main(["import", "kitti-tracking", str(small_training), "--sequence", "0001", "--out", str(out)]) == 2
     assert "calib/0001.txt:3: P2 needs 12 finite numbers, has 3" in capsys.readouterr().err
     assert not out.exists()
+
+
+# ----------------------------------------------------------------------------- raw: tracklets, per-file OXTS
+
+TRACKLET_XML = """<?xml version="1.0" encoding="UTF-8" standalone="yes" ?>
+<!DOCTYPE boost_serialization>
+<boost_serialization signature="serialization::archive" version="9">
+<tracklets class_id="0" tracking_level="0" version="0">
+  <count>2</count>
+  <item_version>1</item_version>
+  <item class_id="1" tracking_level="0" version="1">
+    <objectType>Car</objectType><h>1.5</h><w>1.6</w><l>4.0</l><first_frame>0</first_frame>
+    <poses class_id="2" tracking_level="0" version="0"><count>2</count><item_version>2</item_version>
+      <item class_id="3" tracking_level="0" version="2"><tx>10.0</tx><ty>-3.0</ty><tz>-1.73</tz>
+        <rx>0</rx><ry>0</ry><rz>0.0</rz><state>1</state><occlusion>0</occlusion><occlusion_kf>0</occlusion_kf>
+        <truncation>0</truncation><amt_occlusion>-1</amt_occlusion><amt_occlusion_kf>-1</amt_occlusion_kf>
+        <amt_border_l>-1</amt_border_l><amt_border_r>-1</amt_border_r><amt_border_kf>-1</amt_border_kf></item>
+      <item><tx>9.0</tx><ty>-3.0</ty><tz>-1.73</tz><rx>0</rx><ry>0</ry><rz>0.0</rz><state>1</state>
+        <occlusion>1</occlusion><occlusion_kf>0</occlusion_kf><truncation>0</truncation></item>
+    </poses><finished>1</finished>
+  </item>
+  <item>
+    <objectType>Pedestrian</objectType><h>1.8</h><w>0.6</w><l>0.8</l><first_frame>1</first_frame>
+    <poses><count>1</count><item_version>2</item_version>
+      <item><tx>6.0</tx><ty>4.0</ty><tz>-1.73</tz><rx>0</rx><ry>0</ry><rz>1.5708</rz><state>1</state>
+        <occlusion>-1</occlusion><occlusion_kf>0</occlusion_kf><truncation>1</truncation></item>
+    </poses><finished>1</finished>
+  </item>
+</tracklets>
+</boost_serialization>
+"""
+
+
+@pytest.fixture
+def small_drive(tmp_path: Path) -> Path:
+    """Raw drive 0009 cut to two frames (no Velodyne), in a folder the test may change."""
+    src_date, src = shared_path(*DATE), shared_path(*DRIVE)
+    date = tmp_path / "2011_09_26"
+    drive = date / src.name
+    for name in ("calib_cam_to_cam.txt", "calib_velo_to_cam.txt", "calib_imu_to_velo.txt"):
+        date.mkdir(exist_ok=True)
+        shutil.copy(src_date / name, date)
+    for part in ("image_02/data", "image_03/data", "oxts/data"):
+        (drive / part).mkdir(parents=True)
+        suffix = ".txt" if part.startswith("oxts") else ".png"
+        for k in range(2):
+            shutil.copy(src / part / f"{k:010d}{suffix}", drive / part)
+    shutil.copy(src / "image_02" / "timestamps.txt", drive / "image_02")
+    return drive
+
+
+def test_raw_tracklets_become_world_objects(small_drive: Path, tmp_path: Path) -> None:
+    (small_drive / "tracklet_labels.xml").write_text(TRACKLET_XML)
+    out = tmp_path / "raw.mcap"
+    assert kitti_raw.import_drive(small_drive, out) == 2
+    truth = by_type(out)[GroundTruthObjects]
+    car = next(o for o in truth[0].objects if o.cls == "Car")
+    # independently: Velodyne -> camera 0 -> rectified -> cam2 (x shifted by P2's offset) -> vehicle axes
+    date = small_drive.parent
+    cam, velo = calib_rows(date / "calib_cam_to_cam.txt"), calib_rows(date / "calib_velo_to_cam.txt")
+    p2 = cam["P_rect_02"].reshape(3, 4)
+    point = velo["R"].reshape(3, 3) @ np.array([10.0, -3.0, -1.73 + 0.75]) + velo["T"]
+    point = cam["R_rect_00"].reshape(3, 3) @ point + np.linalg.solve(p2[:, :3], p2[:, 3])
+    expected = np.array([point[2], -point[0], 1.65 - point[1]])
+    assert np.allclose(car.center, expected, atol=1e-6)
+    assert car.center[2] == pytest.approx(0.75, abs=0.15)  # the Velodyne sits ~1.73 m above the road
+    assert car.size.tolist() == [4.0, 1.6, 1.5] and abs(car.yaw) < 0.05
+    assert (car.truncated, car.occluded) == (0.0, 0)
+    walker = next(o for o in truth[1].objects if o.cls == "Pedestrian")
+    assert (walker.truncated, walker.occluded) == (1.0, -1) and walker.yaw == pytest.approx(np.pi / 2, abs=0.05)
+    assert [o.occluded for o in truth[1].objects if o.cls == "Car"] == [1]
+
+
+def test_raw_malformed_oxts_packet_is_named(small_drive: Path, tmp_path: Path) -> None:
+    packet = small_drive / "oxts" / "data" / "0000000001.txt"
+    packet.write_text(" ".join(packet.read_text().split()[:20]))
+    out = tmp_path / "raw.mcap"
+    with pytest.raises(InputError, match=r"0000000001.txt:1: OXTS packet needs 30 finite numbers, has 20"):
+        kitti_raw.import_drive(small_drive, out)
+    assert not out.exists()
