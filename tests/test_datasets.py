@@ -329,3 +329,19 @@ def test_raw_malformed_oxts_packet_is_named(small_drive: Path, tmp_path: Path) -
     with pytest.raises(InputError, match=r"0000000001.txt:1: OXTS packet needs 30 finite numbers, has 20"):
         kitti_raw.import_drive(small_drive, out)
     assert not out.exists()
+
+
+@pytest.mark.timeout(60)
+def test_tracking_velodyne_truth_matches_the_raw_drive(small_training: Path, tmp_path: Path) -> None:
+    """Tracking 0001 is raw drive 0009: a scan in the tracking layout gives the raw import's truth."""
+    (small_training / "velodyne" / "0001").mkdir(parents=True)
+    shutil.copy(shared_path(*DRIVE, "velodyne_points", "data", "0000000000.bin"),
+                small_training / "velodyne" / "0001" / "000000.bin")
+    tracking_out, raw_out = tmp_path / "trk.mcap", tmp_path / "raw.mcap"
+    kitti_tracking.import_sequence(small_training, "0001", tracking_out, max_frames=1)
+    kitti_raw.import_drive(shared_path(*DRIVE), raw_out, max_frames=1)
+    tracking = by_type(tracking_out)[GroundTruthDisparity][0].disparity
+    raw = by_type(raw_out)[GroundTruthDisparity][0].disparity
+    assert np.array_equal(np.isfinite(tracking), np.isfinite(raw))
+    assert np.nanmax(np.abs(tracking - raw)) < 0.01  # the tracking calibration rounds the same numbers
+    assert open_recording(tracking_out).info()["lidar_frames"] == [0]

@@ -11,12 +11,13 @@ from pathlib import Path
 
 import numpy as np
 
-from common.datasets import kitti_calib
+from common.datasets import kitti_calib, velodyne
 from common.datasets.export import recording_info, write_frames
 from common.datasets.images import image_size, paired_files
 from common.datasets.sequence import F64, StereoSequence, finite_difference_velocities, frame_numbers, relative_to_first
 from common.errors import InputError
 from common.geometry import invert
+from common.messages import Message
 
 
 def read_rows(path: Path, columns: int, what: str) -> list[np.ndarray]:
@@ -57,5 +58,14 @@ def load(sequence: Path, poses_file: Path, max_frames: int | None = None) -> Ste
 def import_sequence(sequence: Path, poses_file: Path, out: Path, max_frames: int | None = None) -> int:
     """Write an odometry sequence to ``out``; returns the frames written."""
     seq = load(sequence, poses_file, max_frames)
-    info = recording_info("kitti-odometry", sequence.name, len(seq.frames), seq.calib)
-    return write_frames(out, info, seq.messages(), f"import odometry {sequence.name}")
+    rig = kitti_calib.load_odometry(sequence / "calib.txt")
+    stamps = dict(zip(seq.frames, seq.stamps, strict=True))
+    scans = {f: sequence / "velodyne" / f"{f:06d}.bin" for f in seq.frames}
+    lidar = [f for f in seq.frames if scans[f].is_file()]
+    velo_to_cam = rig.velo_to_cam2() if lidar else np.eye(4)
+
+    def truth(frame: int) -> list[Message]:
+        return velodyne.truth_for(scans[frame], frame, stamps[frame], velo_to_cam, seq.calib)
+
+    info = recording_info("kitti-odometry", sequence.name, len(seq.frames), seq.calib, lidar_frames=lidar)
+    return write_frames(out, info, seq.messages(truth), f"import odometry {sequence.name}")

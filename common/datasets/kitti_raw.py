@@ -16,7 +16,7 @@ from common.datasets.export import recording_info, write_frames
 from common.datasets.images import image_size, paired_files
 from common.datasets.sequence import StereoSequence, frame_numbers
 from common.errors import InputError
-from common.messages import GroundTruthDisparity, Message
+from common.messages import Message
 
 
 def parse_stamp(text: str, path: Path, line: int) -> int:
@@ -70,10 +70,7 @@ def import_drive(drive: Path, out: Path, max_frames: int | None = None) -> int:
         out: list[Message] = []
         if frame in objects:
             out.append(objects[frame])
-        if scans[frame].is_file():
-            disparity = velodyne.scan_disparity(velodyne.read_scan(scans[frame]), velo_to_cam, seq.calib)
-            out.append(GroundTruthDisparity(frame_id=frame, stamp_ns=stamps[frame], disparity=disparity, sparse=True))
-        return out
+        return out + velodyne.truth_for(scans[frame], frame, stamps[frame], velo_to_cam, seq.calib)
 
     info = recording_info("kitti-raw", drive.name, len(seq.frames), seq.calib,
                           lidar_frames=[f for f in seq.frames if scans[f].is_file()],

@@ -14,13 +14,13 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from common.datasets import kitti_calib, oxts
+from common.datasets import kitti_calib, oxts, velodyne
 from common.datasets.export import FRAME_RATE_HZ, recording_info, write_frames
 from common.datasets.images import image_size, paired_files
 from common.datasets.kitti_labels import frame_truth, read_labels
 from common.datasets.sequence import StereoSequence, frame_numbers
 from common.errors import InputError
-from common.messages import GroundTruthObjects
+from common.messages import GroundTruthObjects, Message
 
 F64 = npt.NDArray[np.float64]
 
@@ -57,5 +57,15 @@ def import_sequence(training: Path, sequence: str, out: Path, max_frames: int | 
     """Write one tracking sequence to ``out``; returns the frames written."""
     loaded = load(training, sequence, max_frames)
     seq = loaded.sequence
-    info = recording_info("kitti-tracking", sequence, len(seq.frames), seq.calib)
-    return write_frames(out, info, seq.messages(lambda frame: [loaded.truth[frame]]), f"import tracking {sequence}")
+    stamps = dict(zip(seq.frames, seq.stamps, strict=True))
+    scans = {f: training / "velodyne" / sequence / f"{f:06d}.bin" for f in seq.frames}
+    lidar = [f for f in seq.frames if scans[f].is_file()]
+    rig = kitti_calib.load_tracking(training / "calib" / f"{sequence}.txt")
+    velo_to_cam = rig.velo_to_cam2() if lidar else np.eye(4)
+
+    def truth(frame: int) -> list[Message]:
+        lidar_truth = velodyne.truth_for(scans[frame], frame, stamps[frame], velo_to_cam, seq.calib)
+        return [loaded.truth[frame], *lidar_truth]
+
+    info = recording_info("kitti-tracking", sequence, len(seq.frames), seq.calib, lidar_frames=lidar)
+    return write_frames(out, info, seq.messages(truth), f"import tracking {sequence}")

@@ -14,7 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import InputError
-from common.messages import Calibration
+from common.messages import Calibration, GroundTruthDisparity
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -49,3 +49,13 @@ def scan_disparity(points: F32, velo_to_cam: F64, calib: Calibration) -> F32:
     disparity = np.full(calib.width * calib.height, np.nan, dtype=np.float32)
     disparity[pixel[first]] = (calib.fx * calib.baseline / depth[first]).astype(np.float32)
     return disparity.reshape(calib.height, calib.width)
+
+
+def truth_for(
+    path: Path, frame: int, stamp_ns: int, velo_to_cam: F64, calib: Calibration
+) -> list[GroundTruthDisparity]:
+    """The frame's sparse true disparity if it has a scan at ``path``; nothing otherwise."""
+    if not path.is_file():
+        return []
+    disparity = scan_disparity(read_scan(path), velo_to_cam, calib)
+    return [GroundTruthDisparity(frame_id=frame, stamp_ns=stamp_ns, disparity=disparity, sparse=True)]
