@@ -44,7 +44,7 @@ def load(drive: Path, max_frames: int | None = None) -> StereoSequence:
     """Frames, times, calibration and OXTS poses of a drive."""
     if not drive.is_dir():
         raise InputError(f"{drive}: drive folder missing")
-    rig = kitti_calib.load_raw(drive.parent)
+    rig = kitti_calib.load_raw(drive.resolve().parent)
     pairs = paired_files(drive / "image_02" / "data", drive / "image_03" / "data")[:max_frames]
     frames = frame_numbers(pairs)
     packets = oxts.read_packet_files([drive / "oxts" / "data" / f"{f:010d}.txt" for f in frames])
@@ -58,7 +58,7 @@ def load(drive: Path, max_frames: int | None = None) -> StereoSequence:
 def import_drive(drive: Path, out: Path, max_frames: int | None = None) -> int:
     """Write a raw drive to ``out``; returns the frames written."""
     seq = load(drive, max_frames)
-    rig = kitti_calib.load_raw(drive.parent)
+    rig = kitti_calib.load_raw(drive.resolve().parent)
     velo_to_cam = rig.velo_to_cam2()
     stamps = dict(zip(seq.frames, seq.stamps, strict=True))
     scans = {f: drive / "velodyne_points" / "data" / f"{f:010d}.bin" for f in seq.frames}
