@@ -42,8 +42,15 @@ def _texture(seed: int = 1) -> np.ndarray:
 TEXTURE = _texture()
 
 
-def render(cam_pose: np.ndarray, right: bool = False) -> np.ndarray:
-    """RGB view of the corridor from a camera at ``cam_pose`` (camera -> first camera frame)."""
+#: a lorry: textured side at this depth (first camera frame), width and height (m), top edge y.
+LORRY_Z, LORRY_W, LORRY_TOP = 9.0, 6.0, -2.8
+
+
+def render(cam_pose: np.ndarray, right: bool = False, lorry_x: float | None = None) -> np.ndarray:
+    """RGB view of the corridor from a camera at ``cam_pose`` (camera -> first camera frame).
+
+    ``lorry_x``: left edge of a lorry's side crossing the view at ``LORRY_Z``; its texture moves with it.
+    """
     u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
     rays = np.stack([(u - W / 2) / F, (v - H / 2) / F, np.ones_like(u)], axis=-1) @ cam_pose[:3, :3].T
     origin = cam_pose[:3, 3] + cam_pose[:3, 0] * (BASE if right else 0.0)
@@ -59,6 +66,15 @@ def render(cam_pose: np.ndarray, right: bool = False) -> np.ndarray:
         best = np.where(hit, t, best)
         tex_u = np.where(hit, point[..., axes[0]], tex_u)
         tex_v = np.where(hit, point[..., axes[1]], tex_v)
+    if lorry_x is not None:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (LORRY_Z - origin[2]) / rays[..., 2]
+            point = origin + rays * np.where(t > 0, t, 0.0)[..., None]
+        x_rel = point[..., 0] - lorry_x
+        hit = (t > 0) & (t < best) & (x_rel >= 0) & (x_rel <= LORRY_W) & (point[..., 1] >= LORRY_TOP)
+        hit &= point[..., 1] <= 1.65
+        tex_u = np.where(hit, x_rel + 3.0, tex_u)
+        tex_v = np.where(hit, point[..., 1] + 7.0, tex_v)
     scale = 1024 / 20.0  # texture repeats every 20 m
     gray = cv2.remap(
         TEXTURE,
@@ -71,12 +87,12 @@ def render(cam_pose: np.ndarray, right: bool = False) -> np.ndarray:
     return np.repeat(img[..., None], 3, axis=2)
 
 
-def frame(i: int, cam_pose: np.ndarray | None, black: bool = False) -> StereoFrame:
+def frame(i: int, cam_pose: np.ndarray | None, black: bool = False, lorry_x: float | None = None) -> StereoFrame:
     calib = Calibration(fx=F, fy=F, cx=W / 2, cy=H / 2, baseline=BASE, width=W, height=H, cam_to_vehicle=C2V)
     if black or cam_pose is None:
         left = right = np.zeros((H, W, 3), np.uint8)
     else:
-        left, right = render(cam_pose), render(cam_pose, right=True)
+        left, right = render(cam_pose, lorry_x=lorry_x), render(cam_pose, right=True, lorry_x=lorry_x)
     return StereoFrame(frame_id=i, stamp_ns=i * 100_000_000, left=left, right=right, calib=calib)
 
 
@@ -118,6 +134,21 @@ def test_known_motion_is_recovered(yaw: float, t: tuple[float, float, float]) ->
         assert d_err < 0.01
         assert np.all(np.isfinite(out.covariance)) and np.all(np.diag(out.covariance) > 0)
     assert out.frame_id == 2 and out.stamp_ns == 200_000_000
+
+
+@pytest.mark.timeout(60)
+def test_a_crossing_lorry_does_not_bias_the_motion() -> None:
+    odo = StereoOdometry.from_config(Config())
+    step = cam_motion(0.3, (0.0, 0.0, 0.8))
+    lorry = [-3.4 + 0.6 * i for i in range(4)]  # 6 m/s sideways
+    outs = [odo.process(frame(i, np.linalg.matrix_power(step, i), lorry_x=lorry[i])) for i in range(4)]
+    for i in range(1, 4):
+        covered = render(np.linalg.matrix_power(step, i), lorry_x=lorry[i]) != render(np.linalg.matrix_power(step, i))
+        assert np.mean(np.any(covered, axis=2)) > 0.3  # the lorry really fills a third of the view
+        assert outs[i].valid and outs[i].inlier_ratio < 0.9
+        d_err, r_err = errors(outs[i].delta, vehicle_pose(step))
+        assert d_err < 0.015 and r_err < 0.1  # the lorry itself moves 0.6 m a frame
+    assert errors(outs[3].pose, vehicle_pose(np.linalg.matrix_power(step, 3)))[0] < 0.02
 
 
 @pytest.mark.timeout(60)

@@ -23,6 +23,9 @@ from services.odometry.subpixel import refine_circle
 
 F64 = npt.NDArray[np.float64]
 
+#: covariance published with a predicted (invalid) step: metres and radians, deliberately vague.
+PREDICTED_COVARIANCE = np.diag([1.0, 1.0, 1.0, 0.1, 0.1, 0.1])
+
 
 @dataclass(frozen=True)
 class StereoView:
@@ -146,6 +149,8 @@ class StereoOdometry:
         if len(quads) < self.cfg.min_inliers:
             return None
         prev_obs, cur_obs = self.refine(previous, current, quads)
+        prev_obs[:, 2] -= self.cfg.disparity_offset_px  # a rig's measured disparity bias, if any
+        cur_obs[:, 2] -= self.cfg.disparity_offset_px
         lo, hi = self.cfg.min_disparity, self.cfg.max_disparity
         d_prev, d_cur = prev_obs[:, 0] - prev_obs[:, 2], cur_obs[:, 0] - cur_obs[:, 2]
         usable = (d_prev >= lo) & (d_prev <= hi) & (d_cur >= lo) & (d_cur <= hi)
@@ -197,6 +202,7 @@ class StereoOdometry:
             ),
             self.cfg.subpixel_window,
             2.0,
+            self.cfg.subpixel_stereo,
         )
         tol = self.cfg.row_tolerance_px
         ok &= (np.abs(prev_obs[:, 1] - prev_obs[:, 3]) <= tol) & (np.abs(cur_obs[:, 1] - cur_obs[:, 3]) <= tol)
@@ -227,11 +233,9 @@ class StereoOdometry:
         delta = invert(self.pose) @ pose
         if self.gap == 1:
             self.velocity = est.motion
-        n = int(est.inliers.sum())
-        msg = self.message(frame, delta, n, n / max(len(est.inliers), 1), True, vehicle_covariance(est.covariance, c))
         self.pose, self.anchor_pose, self.anchor, self.gap, self.lost = pose, pose, view, 0, 0
-        msg.pose = pose.copy()
-        return msg
+        n = int(est.inliers.sum())
+        return self.message(frame, delta, n, n / max(len(est.inliers), 1), True, vehicle_covariance(est.covariance, c))
 
     def bridge(self, frame: StereoFrame, view: StereoView) -> EgoMotion:
         """A failed estimate: predict from the last motion, or re-anchor after too many failures."""
@@ -246,8 +250,7 @@ class StereoOdometry:
         self.pose = self.pose @ step
         if self.usable(view):  # a textured but unmatched frame is a better anchor than an old one
             self.anchor, self.anchor_pose, self.gap = view, self.pose.copy(), 0
-        cov = np.diag([1.0, 1.0, 1.0, 0.1, 0.1, 0.1])
-        return self.message(frame, step, 0, 0.0, False, cov)
+        return self.message(frame, step, 0, 0.0, False, PREDICTED_COVARIANCE.copy())
 
     def usable(self, view: StereoView) -> bool:
         """Whether a frame has enough stereo matches to anchor the next estimate."""

@@ -18,6 +18,9 @@ import numpy.typing as npt
 
 F64 = npt.NDArray[np.float64]
 
+#: points every RANSAC hypothesis is scored on (the winner is then checked against all points).
+SCORE_POINTS = 200
+
 
 @dataclass(frozen=True)
 class Rig:
@@ -183,7 +186,7 @@ def solve(motion: F64, problems: list[Problem], rig: Rig, iterations: int) -> F6
         motion = np.where(better[:, None, None], trial, motion)
         cost = np.where(better, trial_cost, cost)
         damping = np.where(better, damping * 0.1, damping * 10.0)
-        if np.all(np.abs(delta) < 1e-10):
+        if np.all(np.abs(delta) < 1e-9):
             break
     return motion
 
@@ -229,13 +232,13 @@ def estimate_motion(
         problems.append(Problem(triangulate(current, rig)[None], previous[None], weights[None], backward=True))
     idx = _samples(n, iterations, rng)
     sample = Problem(forward.points[0][idx], forward.obs[0][idx], np.ones((iterations, 3)))
-    hyps = solve(np.repeat(prior[None], iterations, axis=0), [sample], rig, iterations=8)
+    hyps = solve(np.repeat(prior[None], iterations, axis=0), [sample], rig, iterations=6)
     hyps = np.concatenate([hyps, prior[None]])
-    errors = reprojection_sq(hyps, Problem(forward.points[0][None], forward.obs[0][None], forward.weights), rig)
-    counts = (errors < thr2).sum(axis=1)
-    best = int(np.argmax(counts))
-    inliers = errors[best] < thr2
-    motion = hyps[best][None]
+    # hypotheses are ranked on a fixed random subset: the ranking needs a few hundred points, not all
+    probe = rng.permutation(n)[:SCORE_POINTS]
+    errors = reprojection_sq(hyps, Problem(forward.points[:, probe], forward.obs[:, probe], forward.weights), rig)
+    motion = hyps[int(np.argmax((errors < thr2).sum(axis=1)))][None]
+    inliers = reprojection_sq(motion, forward, rig)[0] < thr2
     for _ in range(2):
         if inliers.sum() < 3:
             return None

@@ -51,16 +51,23 @@ def refine_circle(
     xy: tuple[F32, F32, F32, F32],
     window: int,
     max_shift: float,
+    stereo: bool = True,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
     """Previous and current observations (u_l, v_l, u_r, v_r), N x 4 each, and a validity mask.
 
     ``images`` and ``xy`` are ordered (previous-left, previous-right, last-left, last-right).
+    Without ``stereo`` the right-image positions stay where the matched corners were detected
+    (shifted by the left image's refinement in the current frame).
     """
     prev_l, prev_r, cur_l, cur_r = images
     lp, rp, lc, rc = xy
-    rp_ref, ok_rp = track(prev_l, prev_r, lp, rp, window, max_shift)
     lc_ref, ok_lc = track(prev_l, cur_l, lp, lc, window, max_shift)
-    rc_ref, ok_rc = track(cur_l, cur_r, lc_ref, rc, window, max_shift)
+    if stereo:
+        rp_ref, ok_rp = track(prev_l, prev_r, lp, rp, window, max_shift)
+        rc_ref, ok_rc = track(cur_l, cur_r, lc_ref, rc, window, max_shift)
+    else:
+        rp_ref, ok_rp = rp, np.ones(len(rp), dtype=bool)
+        rc_ref, ok_rc = rc + (lc_ref - lc), np.ones(len(rc), dtype=bool)
     previous = np.concatenate([lp, rp_ref], axis=1).astype(np.float64)
     current = np.concatenate([lc_ref, rc_ref], axis=1).astype(np.float64)
     return previous, current, ok_rp & ok_lc & ok_rc
