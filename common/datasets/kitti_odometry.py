@@ -17,7 +17,6 @@ from common.datasets.images import image_size, paired_files
 from common.datasets.sequence import F64, StereoSequence, finite_difference_velocities, frame_numbers, relative_to_first
 from common.errors import InputError
 from common.geometry import invert
-from common.messages import Message
 
 
 def read_rows(path: Path, columns: int, what: str) -> list[np.ndarray]:
@@ -59,13 +58,7 @@ def import_sequence(sequence: Path, poses_file: Path, out: Path, max_frames: int
     """Write an odometry sequence to ``out``; returns the frames written."""
     seq = load(sequence, poses_file, max_frames)
     rig = kitti_calib.load_odometry(sequence / "calib.txt")
-    stamps = dict(zip(seq.frames, seq.stamps, strict=True))
     scans = {f: sequence / "velodyne" / f"{f:06d}.bin" for f in seq.frames}
-    lidar = [f for f in seq.frames if scans[f].is_file()]
-    velo_to_cam = rig.velo_to_cam2() if lidar else np.eye(4)
-
-    def truth(frame: int) -> list[Message]:
-        return velodyne.truth_for(scans[frame], frame, stamps[frame], velo_to_cam, seq.calib)
-
-    info = recording_info("kitti-odometry", sequence.name, len(seq.frames), seq.calib, lidar_frames=lidar)
-    return write_frames(out, info, seq.messages(truth), f"import odometry {sequence.name}")
+    lidar = velodyne.ScanTruth(scans, dict(zip(seq.frames, seq.stamps, strict=True)), rig.velo_to_cam2, seq.calib)
+    info = recording_info("kitti-odometry", sequence.name, len(seq.frames), seq.calib, lidar_frames=lidar.frames)
+    return write_frames(out, info, seq.messages(lidar.messages), f"import odometry {sequence.name}")

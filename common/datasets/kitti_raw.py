@@ -59,20 +59,15 @@ def import_drive(drive: Path, out: Path, max_frames: int | None = None) -> int:
     """Write a raw drive to ``out``; returns the frames written."""
     seq = load(drive, max_frames)
     rig = kitti_calib.load_raw(drive.resolve().parent)
-    velo_to_cam = rig.velo_to_cam2()
-    stamps = dict(zip(seq.frames, seq.stamps, strict=True))
     scans = {f: drive / "velodyne_points" / "data" / f"{f:010d}.bin" for f in seq.frames}
+    lidar = velodyne.ScanTruth(scans, dict(zip(seq.frames, seq.stamps, strict=True)), rig.velo_to_cam2, seq.calib)
     xml = drive / "tracklet_labels.xml"
     objects = tracklets.frame_truth(tracklets.read_tracklets(xml), seq.frames, seq.stamps, seq.poses or [],
-                                    seq.calib.cam_to_vehicle @ velo_to_cam) if xml.is_file() else {}
+                                    seq.calib.cam_to_vehicle @ rig.velo_to_cam2()) if xml.is_file() else {}
 
     def truth(frame: int) -> list[Message]:
-        out: list[Message] = []
-        if frame in objects:
-            out.append(objects[frame])
-        return out + velodyne.truth_for(scans[frame], frame, stamps[frame], velo_to_cam, seq.calib)
+        return [*([objects[frame]] if frame in objects else []), *lidar.messages(frame)]
 
-    info = recording_info("kitti-raw", drive.name, len(seq.frames), seq.calib,
-                          lidar_frames=[f for f in seq.frames if scans[f].is_file()],
+    info = recording_info("kitti-raw", drive.name, len(seq.frames), seq.calib, lidar_frames=lidar.frames,
                           tracklets=xml.is_file())
     return write_frames(out, info, seq.messages(truth), f"import {drive.name}")

@@ -57,15 +57,12 @@ def import_sequence(training: Path, sequence: str, out: Path, max_frames: int | 
     """Write one tracking sequence to ``out``; returns the frames written."""
     loaded = load(training, sequence, max_frames)
     seq = loaded.sequence
-    stamps = dict(zip(seq.frames, seq.stamps, strict=True))
-    scans = {f: training / "velodyne" / sequence / f"{f:06d}.bin" for f in seq.frames}
-    lidar = [f for f in seq.frames if scans[f].is_file()]
     rig = kitti_calib.load_tracking(training / "calib" / f"{sequence}.txt")
-    velo_to_cam = rig.velo_to_cam2() if lidar else np.eye(4)
+    scans = {f: training / "velodyne" / sequence / f"{f:06d}.bin" for f in seq.frames}
+    lidar = velodyne.ScanTruth(scans, dict(zip(seq.frames, seq.stamps, strict=True)), rig.velo_to_cam2, seq.calib)
 
     def truth(frame: int) -> list[Message]:
-        lidar_truth = velodyne.truth_for(scans[frame], frame, stamps[frame], velo_to_cam, seq.calib)
-        return [loaded.truth[frame], *lidar_truth]
+        return [loaded.truth[frame], *lidar.messages(frame)]
 
-    info = recording_info("kitti-tracking", sequence, len(seq.frames), seq.calib, lidar_frames=lidar)
+    info = recording_info("kitti-tracking", sequence, len(seq.frames), seq.calib, lidar_frames=lidar.frames)
     return write_frames(out, info, seq.messages(truth), f"import tracking {sequence}")

@@ -49,7 +49,7 @@ class StereoSequence:
         return GroundTruthEgo(frame_id=self.frames[index], stamp_ns=self.stamps[index],
                               pose=self.poses[index], velocity=velocity)
 
-    def messages(self, truth: Callable[[int], list[Message]] = lambda _: []) -> Iterator[list[Message]]:
+    def messages(self, truth: Callable[[int], Sequence[Message]] = lambda _: []) -> Iterator[list[Message]]:
         """Per frame: the stereo pair, the true ego pose, then ``truth(frame)``."""
         for index, (frame, stamp, (left_path, right_path)) in enumerate(
             zip(self.frames, self.stamps, self.pairs, strict=True)
@@ -63,7 +63,7 @@ class StereoSequence:
             ego = self.ego(index)
             if ego is not None:
                 out.append(ego)
-            yield out + truth(frame)
+            yield [*out, *truth(frame)]
 
 
 def relative_to_first(poses: Sequence[F64]) -> list[F64]:

@@ -8,6 +8,7 @@ point are NaN (``sparse`` truth).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -51,11 +52,24 @@ def scan_disparity(points: F32, velo_to_cam: F64, calib: Calibration) -> F32:
     return disparity.reshape(calib.height, calib.width)
 
 
-def truth_for(
-    path: Path, frame: int, stamp_ns: int, velo_to_cam: F64, calib: Calibration
-) -> list[GroundTruthDisparity]:
-    """The frame's sparse true disparity if it has a scan at ``path``; nothing otherwise."""
-    if not path.is_file():
-        return []
-    disparity = scan_disparity(read_scan(path), velo_to_cam, calib)
-    return [GroundTruthDisparity(frame_id=frame, stamp_ns=stamp_ns, disparity=disparity, sparse=True)]
+
+class ScanTruth:
+    """The sparse true disparity of every frame that has a scan (the KITTI samples have a few)."""
+
+    def __init__(self, scans: dict[int, Path], stamps: dict[int, int], velo_to_cam: Callable[[], F64],
+                 calib: Calibration) -> None:
+        self.scans = {frame: path for frame, path in scans.items() if path.is_file()}
+        self.stamps = stamps
+        self.calib = calib
+        # only asked for when there is a scan: a calibration without a Velodyne mount is fine otherwise
+        self.velo_to_cam = velo_to_cam() if self.scans else np.eye(4)
+
+    @property
+    def frames(self) -> list[int]:
+        return sorted(self.scans)
+
+    def messages(self, frame: int) -> list[GroundTruthDisparity]:
+        if frame not in self.scans:
+            return []
+        disparity = scan_disparity(read_scan(self.scans[frame]), self.velo_to_cam, self.calib)
+        return [GroundTruthDisparity(frame_id=frame, stamp_ns=self.stamps[frame], disparity=disparity, sparse=True)]
