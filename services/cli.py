@@ -29,6 +29,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "launch": ("services.launch", "start and supervise the services a launch spec puts on this host"),
     "bench": ("services.bench", "measure per-stage, in-process and distributed speed, memory and CPU"),
     "router": ("services.router", "run a Zenoh router (the wheel ships no zenohd)"),
+    "monitor": ("services.monitor", "watch a running vehicle: terminal dashboard or Foxglove live view (read-only)"),
+    "export": ("services.export", "convert a recording to Foxglove's own schemas (opens in the Foxglove app)"),
+    "render": ("services.render", "draw obstacle boxes on the left image beside a bird's-eye view (PNG, MP4)"),
 }
 
 

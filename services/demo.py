@@ -70,6 +70,7 @@ def run_demo(recording: Path, out: Path, max_frames: int | None, timeout_s: floa
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         sup.start()
+        print(f"demo: router at tcp/127.0.0.1:{variables['port']}", file=sys.stderr, flush=True)
         print(f"demo: all services alive, replaying {frames} frames of {recording.name}", file=sys.stderr)
         while not stop.wait(0.1):
             ended = sup.poll()
