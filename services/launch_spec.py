@@ -1,12 +1,16 @@
 """Launch specs: the whole graph in one YAML file, and the check that refuses a graph that cannot work.
 
-A spec names the router, the hosts, and every service with its host, its ``stereovox``
-sub-command, the keys it reads (schema and queue policy) and writes (schema). ``{name}``
-placeholders are filled from ``--var name=value`` so one file serves a test, a demo and a car.
+A spec names the router, the hosts with their addresses, the Zenoh configuration files, and
+every service with its host, its ``stereovox`` sub-command, the keys it reads (schema and queue
+policy) and writes (schema). ``{name}`` placeholders are filled from ``--var name=value`` so one
+file serves a test, a demo and a car. :func:`check` finds what would only show up at run time on
+the car: a key nobody publishes, two publishers, a schema version one side does not speak, a
+router listening on an address that is not its computer's.
 """
 
 from __future__ import annotations
 
+import ipaddress
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,7 +23,10 @@ from common.messages import SCHEMAS, Message
 
 QUEUE_POLICIES = ("newest", "fifo")
 RESTART_POLICIES = ("always", "on-failure", "never")
+ZENOH_ROLES = ("router", "client", "peer")
+WILDCARD_HOSTS = ("0.0.0.0", "::")
 _PLACEHOLDER = re.compile(r"\{([a-z_][a-z0-9_]*)\}")
+_ENDPOINT = re.compile(r"(?:tcp|tls|quic)/\[?([^\]]+?)\]?:(\d+)")
 
 
 @dataclass
@@ -32,6 +39,11 @@ class ServiceSpec:
     restart: str = "on-failure"
     source: bool = False  # started last, once every other service is alive
 
+    def queue_policy(self) -> str | None:
+        """The one input policy ``stereovox run`` takes; None when the inputs disagree or there are none."""
+        policies = {opts.get("queue", "newest") for opts in self.inputs.values()}
+        return policies.pop() if len(policies) == 1 else None
+
 
 @dataclass
 class LaunchSpec:
@@ -42,13 +54,27 @@ class LaunchSpec:
     hosts: dict[str, dict[str, Any]]
     services: dict[str, ServiceSpec]
     path: Path | None = None
+    zenoh: dict[str, Path] = field(default_factory=dict)  # role -> JSON5 file
+    unfilled: set[str] = field(default_factory=set)  # placeholders left (only when not strict)
 
     def on_host(self, host: str | None) -> list[ServiceSpec]:
         return [s for s in self.services.values() if host is None or s.host == host]
 
     def router_endpoint(self) -> str:
-        """Where clients connect: the router's listen endpoint (with a concrete address)."""
-        return self.router_listen
+        """Where clients connect: the listen endpoint, a wildcard address replaced by the router host's."""
+        host, port = endpoint_address(self.router_listen)
+        if host in WILDCARD_HOSTS:
+            host = str(self.hosts.get(self.router_host, {}).get("address", "127.0.0.1"))
+        proto = self.router_listen.split("/", 1)[0]
+        return f"{proto}/{'[' + host + ']' if ':' in host else host}:{port}"
+
+
+def endpoint_address(endpoint: str) -> tuple[str, int]:
+    """``tcp/127.0.0.1:7447`` -> ("127.0.0.1", 7447)."""
+    match = _ENDPOINT.fullmatch(endpoint)
+    if not match:
+        raise ConfigError(f"router endpoint {endpoint!r} is not tcp/HOST:PORT (or tls/, quic/)")
+    return match.group(1), int(match.group(2))
 
 
 def _fill(value: Any, variables: dict[str, str], missing: set[str]) -> Any:
@@ -97,6 +123,7 @@ def load_spec(path: str | Path, variables: dict[str, str] | None = None, strict:
             for name, s in (raw.get("services") or {}).items()
         }
         router = raw.get("router") or {}
+        zenoh_files = {str(role): (p.parent / str(f)).resolve() for role, f in (raw.get("zenoh") or {}).items()}
         return LaunchSpec(
             name=str(raw.get("name", p.stem)),
             vehicle=str(raw.get("vehicle", "ego")),
@@ -105,6 +132,8 @@ def load_spec(path: str | Path, variables: dict[str, str] | None = None, strict:
             hosts={str(k): dict(v or {}) for k, v in (raw.get("hosts") or {}).items()},
             services=services,
             path=p,
+            zenoh=zenoh_files,
+            unfilled=missing,
         )
     except (KeyError, TypeError, AttributeError) as exc:
         raise ConfigError(f"{p}: malformed service or router entry ({type(exc).__name__}: {exc})") from None
@@ -118,42 +147,101 @@ def _schema_ok(schema_id: str) -> type[Message] | None:
     return cls if int(m.group(2)) == cls.VERSION else None
 
 
+def _address(spec: LaunchSpec, host: str) -> str:
+    return str(spec.hosts.get(host, {}).get("address", ""))
+
+
+def _check_hosts(spec: LaunchSpec) -> list[str]:
+    """Every host has an address; the router listens on its own host's address (or all of them)."""
+    errors: list[str] = []
+    for role, path in spec.zenoh.items():
+        if role not in ZENOH_ROLES:
+            errors.append(f"zenoh: role {role!r} is not one of {ZENOH_ROLES}")
+        elif not path.is_file():
+            errors.append(f"zenoh: {role} configuration {path} does not exist")
+    for name, host in spec.hosts.items():
+        address = str(host.get("address", "")).strip()
+        if not address:
+            errors.append(f"host {name}: no address")
+            continue
+        if _PLACEHOLDER.search(address):
+            continue  # --check without --var: the value is not known yet
+        try:
+            ipaddress.ip_address(address)
+        except ValueError:
+            if not re.fullmatch(r"[A-Za-z0-9.-]+", address):
+                errors.append(f"host {name}: address {address!r} is neither an IP address nor a host name")
+    if not spec.router_listen:
+        return [*errors, "router: no listen endpoint"]
+    if spec.router_host not in spec.hosts:
+        return [*errors, f"router: host {spec.router_host!r} is not among hosts {sorted(spec.hosts)}"]
+    own = _address(spec, spec.router_host)
+    if _PLACEHOLDER.search(spec.router_listen + own):
+        return errors
+    try:
+        listen_host, _ = endpoint_address(spec.router_listen)
+    except ConfigError as exc:
+        return [*errors, f"router: {exc}"]
+    if listen_host not in (own, *WILDCARD_HOSTS):
+        errors.append(
+            f"router: listens on {listen_host} but its host {spec.router_host} has address {own!r}; "
+            "clients on other hosts could not reach it"
+        )
+    elif listen_host.startswith("127.") or listen_host == "::1":
+        remote = sorted({s.host for s in spec.services.values() if _address(spec, s.host) not in ("", own)})
+        if remote:
+            errors.append(f"router: listens on loopback {listen_host}, out of reach of hosts {remote}")
+    return errors
+
+
+def _check_service(svc: ServiceSpec, spec: LaunchSpec) -> list[str]:
+    errors: list[str] = []
+    if svc.host not in spec.hosts:
+        errors.append(f"service {svc.name}: host {svc.host!r} is not among hosts {sorted(spec.hosts)}")
+    if svc.restart not in RESTART_POLICIES:
+        errors.append(f"service {svc.name}: restart {svc.restart!r} is not one of {RESTART_POLICIES}")
+    if not svc.command:
+        return [*errors, f"service {svc.name}: empty command"]
+    for key, schema in svc.outputs.items():
+        if _schema_ok(schema) is None:
+            errors.append(f"service {svc.name}: output {key} has unknown schema or version {schema!r}")
+    for key, opts in svc.inputs.items():
+        queue = opts.get("queue", "newest")
+        if queue not in QUEUE_POLICIES:
+            errors.append(f"service {svc.name}: input {key} queue {queue!r} is not one of {QUEUE_POLICIES}")
+    if svc.command[0] == "run" and svc.inputs:
+        policy = svc.queue_policy()
+        given = svc.command[svc.command.index("--policy") + 1] if "--policy" in svc.command[:-1] else None
+        if policy is None:
+            errors.append(f"service {svc.name}: inputs mix queue policies; stereovox run takes one")
+        elif given is not None and given != policy:
+            errors.append(f"service {svc.name}: command says --policy {given} but its inputs say {policy}")
+    return errors
+
+
 def check(spec: LaunchSpec) -> list[str]:
     """Every problem that would stop the graph from working; empty when it is consistent."""
-    errors: list[str] = []
-    if not spec.router_listen:
-        errors.append("router: no listen endpoint")
-    if spec.router_host not in spec.hosts:
-        errors.append(f"router: host {spec.router_host!r} is not among hosts {sorted(spec.hosts)}")
+    errors = _check_hosts(spec)
     publishers: dict[str, list[tuple[str, str]]] = {}
     for svc in spec.services.values():
-        if svc.host not in spec.hosts:
-            errors.append(f"service {svc.name}: host {svc.host!r} is not among hosts {sorted(spec.hosts)}")
-        if svc.restart not in RESTART_POLICIES:
-            errors.append(f"service {svc.name}: restart {svc.restart!r} is not one of {RESTART_POLICIES}")
-        if not svc.command:
-            errors.append(f"service {svc.name}: empty command")
+        errors += _check_service(svc, spec)
         for key, schema in svc.outputs.items():
-            if _schema_ok(schema) is None:
-                errors.append(f"service {svc.name}: output {key} has unknown schema or version {schema!r}")
             publishers.setdefault(key, []).append((svc.name, schema))
+    for key, pubs in publishers.items():
+        if len(pubs) > 1:
+            errors.append(f"key {key}: published by {len(pubs)} services {[p[0] for p in pubs]}")
     for svc in spec.services.values():
         for key, opts in svc.inputs.items():
-            queue = opts.get("queue", "newest")
-            if queue not in QUEUE_POLICIES:
-                errors.append(f"service {svc.name}: input {key} queue {queue!r} is not one of {QUEUE_POLICIES}")
             if "*" in key:
                 continue  # a wildcard subscriber (the recorder) takes whatever is there
+            want = opts.get("schema")
             pubs = publishers.get(key, [])
+            if not want:
+                errors.append(f"service {svc.name}: input {key} names no schema")
+            elif _schema_ok(want) is None:
+                errors.append(f"service {svc.name}: input {key} expects unknown schema or version {want!r}")
             if not pubs:
                 errors.append(f"service {svc.name}: input {key} has no publisher")
-            elif len(pubs) > 1:
-                errors.append(f"service {svc.name}: input {key} has {len(pubs)} publishers: {[p[0] for p in pubs]}")
-            else:
-                pub_name, pub_schema = pubs[0]
-                want = opts.get("schema")
-                if want and want != pub_schema:
-                    errors.append(
-                        f"service {svc.name}: input {key} expects {want} but {pub_name} publishes {pub_schema}"
-                    )
+            elif len(pubs) == 1 and want and want != pubs[0][1]:
+                errors.append(f"service {svc.name}: input {key} expects {want} but {pubs[0][0]} publishes {pubs[0][1]}")
     return errors
