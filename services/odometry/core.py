@@ -167,6 +167,7 @@ class StereoOdometry:
             self.cfg.ransac_threshold_px,
             self.rng,
             self.cfg.symmetric,
+            self.cfg.robust_px,
         )
         if result is None or int(result.inliers.sum()) < self.cfg.min_inliers:
             return None

@@ -20,6 +20,8 @@ F64 = npt.NDArray[np.float64]
 
 #: points every RANSAC hypothesis is scored on (the winner is then checked against all points).
 SCORE_POINTS = 200
+#: refinement rounds on the inliers, each re-selecting them (and re-weighting, when robust).
+ROUNDS = 3
 
 
 @dataclass(frozen=True)
@@ -214,6 +216,7 @@ def estimate_motion(
     threshold_px: float,
     rng: np.random.Generator,
     symmetric: bool = True,
+    robust_px: float = 0.0,
 ) -> MotionEstimate | None:
     """RANSAC of 3-point Gauss-Newton solutions, then LM on all inliers (twice, re-selecting them).
 
@@ -236,13 +239,18 @@ def estimate_motion(
     hyps = np.concatenate([hyps, prior[None]])
     # hypotheses are ranked on a fixed random subset: the ranking needs a few hundred points, not all
     probe = rng.permutation(n)[:SCORE_POINTS]
-    errors = reprojection_sq(hyps, Problem(forward.points[:, probe], forward.obs[:, probe], forward.weights), rig)
+    errors = reprojection_sq(hyps, Problem(forward.points[:, probe], forward.obs[:, probe], weights[None, probe]), rig)
     motion = hyps[int(np.argmax((errors < thr2).sum(axis=1)))][None]
     inliers = reprojection_sq(motion, forward, rig)[0] < thr2
-    for _ in range(2):
+    chosen = problems
+    for _ in range(ROUNDS):
         if inliers.sum() < 3:
             return None
-        motion = solve(motion, [p.take(inliers) for p in problems], rig, 12)
+        chosen = [p.take(inliers) for p in problems]
+        if robust_px > 0:  # Cauchy weights: marginal inliers pull less than clean ones
+            err = np.sum([reprojection_sq(motion, p, rig)[0] for p in chosen], axis=0)
+            chosen = [Problem(p.points, p.obs, p.weights / (1.0 + err / robust_px**2), p.backward) for p in chosen]
+        motion = solve(motion, chosen, rig, 12)
         inliers = np.all([reprojection_sq(motion, p, rig)[0] < thr2 for p in problems], axis=0)
     if inliers.sum() < 3:
         return None
