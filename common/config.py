@@ -121,6 +121,8 @@ class VoxelConfig:
     ground_clearance: float = 0.2
     terrain_slice: float = 1.0  # m of x per slice of the terrain height profile
     terrain_max_grade: float = 0.15  # steepest road grade (and grade change per slice) followed
+    join_share: float = 0.3  # clusters joined as parts of one object when this share of one links to the other
+    bridge_voxels: int = 3  # a gap along the line of sight up to this many voxels still links two parts
 
 
 @dataclass

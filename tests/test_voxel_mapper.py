@@ -13,7 +13,7 @@ from common.messages import Clusters, EgoMotion, PointCloud, decode, encode
 from services.voxel_mapper import VoxelMapper
 from services.voxel_mapper.colour import hsl_of
 
-RED, BLUE, GREY, GREEN = (200, 40, 30), (30, 50, 190), (110, 110, 105), (40, 190, 60)
+RED, BLUE, GREY, GREEN, GLASS = (200, 40, 30), (30, 50, 190), (110, 110, 105), (40, 190, 60), (60, 70, 90)
 
 
 def box(lo: tuple[float, float, float], hi: tuple[float, float, float], colour: tuple[int, int, int],
@@ -97,6 +97,22 @@ def test_touching_boxes_of_one_colour_are_one_cluster() -> None:
     assert np.all(c.color_var_rgb >= 0) and np.all(c.color_var_rgb < 0.01)
 
 
+def test_a_car_of_paint_and_glass_is_one_cluster() -> None:
+    body, cabin = box((6, -0.9, 0.25), (10.3, 0.9, 0.9), RED), box((7.0, -0.8, 0.95), (9.4, 0.8, 1.45), GLASS)
+    assert len(mapper(join_share=2.0).process(cloud(road(), body, cabin), ego()).clusters) >= 2  # colour alone
+    out = mapper().process(cloud(road(), body, cabin), ego())
+    assert len(out.clusters) == 1
+    assert out.clusters[0].bbox_max[2] == pytest.approx(1.45, abs=0.15)
+
+
+def test_faces_apart_along_the_line_of_sight_are_one_cluster() -> None:
+    """A boot's back and the rear window 0.7 m behind it, with the boot lid unseen (as from 20 m)."""
+    back = box((20.0, -0.9, 0.3), (20.05, 0.9, 0.95), RED)
+    window = box((20.7, -0.8, 0.95), (20.75, 0.8, 1.45), GLASS)
+    assert len(mapper(join_share=2.0).process(cloud(road(), back, window), ego()).clusters) >= 2
+    assert len(mapper().process(cloud(road(), back, window), ego()).clusters) == 1
+
+
 def test_lone_noise_voxel_is_removed() -> None:
     speck = (np.array([[12.1, 3.1, 1.1], [12.15, 3.12, 1.14], [12.2, 3.05, 1.2]], np.float32), noisy_colour(GREEN, 3))
     out = mapper().process(cloud(road(), box((6, -1, 0), (8, 1, 1.5), RED), speck), ego())
@@ -108,9 +124,9 @@ def test_lone_noise_voxel_is_removed() -> None:
 def test_small_cluster_touching_a_big_one_is_merged() -> None:
     rng = np.random.default_rng(4)
     patch_pts = (np.array([8.05, 0.05, 1.05]) + rng.random((40, 3)) * 0.15).astype(np.float32)  # one cell
-    alone = mapper(min_cluster_voxels=1).process(cloud(road(), box((6, -1, 0), (8, 1, 1.5), RED),
+    alone = mapper(min_cluster_voxels=1, join_share=2.0).process(cloud(road(), box((6, -1, 0), (8, 1, 1.5), RED),
                                                        (patch_pts, noisy_colour(GREEN, 40))), ego())
-    assert len(alone.clusters) == 2  # without refinement the green voxel is its own cluster
+    assert len(alone.clusters) == 2  # without refinement (nor joining) the green voxel is its own cluster
     patch = (patch_pts, noisy_colour(GREEN, 40))
     out = mapper().process(cloud(road(), box((6, -1, 0), (8, 1, 1.5), RED), patch), ego())
     assert len(out.clusters) == 1

@@ -19,6 +19,7 @@ from common.config import Config, VolumeConfig
 from common.errors import ConfigError, InputError
 from common.messages import Clusters, EgoMotion, PointCloud
 from services.voxel_mapper.flood_fill import flood_fill, touching_pairs
+from services.voxel_mapper.linkage import join_parts
 from services.voxel_mapper.refinement import aggregate, remove_noise
 from services.voxel_mapper.summary import describe
 from services.voxel_mapper.terrain import FlatGround, TerrainProfile
@@ -32,7 +33,8 @@ class VoxelMapper:
 
     def __init__(self, *, edge: float, volume: VolumeConfig, ground: Ground, epsilon: float,
                  min_cluster_voxels: int, min_density: float, min_points_per_voxel: int = 1,
-                 keep_frames: int = 0, ground_clearance: float = 0.2) -> None:
+                 keep_frames: int = 0, ground_clearance: float = 0.2, join_share: float = 0.3,
+                 bridge_voxels: int = 3) -> None:
         if edge <= 0.0:
             raise ConfigError(f"voxel.edge must be > 0, got {edge}")
         self.map = VoxelMap(edge, keep_frames)
@@ -43,6 +45,8 @@ class VoxelMapper:
         self.min_density = min_density
         self.min_points = min_points_per_voxel
         self.clearance = ground_clearance
+        self.join_share = join_share
+        self.bridge_voxels = bridge_voxels
         self.epoch: int | None = None
 
     @classmethod
@@ -58,7 +62,7 @@ class VoxelMapper:
         return cls(edge=v.edge, volume=vol, ground=ground, epsilon=v.epsilon,
                    min_cluster_voxels=v.min_cluster_voxels, min_density=v.min_density,
                    min_points_per_voxel=v.min_points_per_voxel, keep_frames=v.keep_frames,
-                   ground_clearance=v.ground_clearance)
+                   ground_clearance=v.ground_clearance, join_share=v.join_share, bridge_voxels=v.bridge_voxels)
 
     def process(self, cloud: PointCloud, ego: EgoMotion) -> Clusters:
         """Update the map with one frame and cluster the voxels above the road."""
@@ -69,6 +73,8 @@ class VoxelMapper:
         road = self.ground.fit(points)
         candidate = self._above_road(road, ego.pose)
         labels, n_clusters = flood_fill(self.map, candidate, self.epsilon)
+        labels = join_parts(self.map, labels, n_clusters, ego.pose[:3, 3], self.min_cluster_voxels,
+                            self.join_share, self.bridge_voxels)
         labels = aggregate(labels, n_clusters, touching_pairs(self.map, labels), self.min_cluster_voxels)
         labels = remove_noise(labels, self.map.coords, n_clusters, self.min_cluster_voxels, self.min_density)
         return Clusters(frame_id=cloud.frame_id, stamp_ns=cloud.stamp_ns, clusters=describe(self.map, labels),
