@@ -61,7 +61,7 @@ def serve(session: Any, vehicle: str, host: str, port: int, stop: threading.Even
     context = foxglove.Context()
     channels = Channels(context)
     server = foxglove.start_server(name=f"stereovox {vehicle}", host=host, port=port, context=context)
-    print(f"monitor: foxglove server at ws://{host}:{server.port()} (vehicle {vehicle})", file=sys.stderr, flush=True)
+    print(f"monitor: foxglove server at ws://{host}:{server.port} (vehicle {vehicle})", file=sys.stderr, flush=True)
     view = LiveView(session, vehicle, channels)
     try:
         while not stop.is_set():
