@@ -3,6 +3,7 @@ the circle check, world re-anchoring, and KITTI odometry 04 against its ground t
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import cv2
@@ -11,6 +12,7 @@ import pytest
 from conftest import shared_path
 
 from common.config import Config
+from common.errors import CalibrationError, InputError
 from common.geometry import camera_to_vehicle, invert, make_pose, rot_y, rotation_angle
 from common.messages import Calibration, StereoFrame
 from services.odometry import StereoOdometry
@@ -182,6 +184,20 @@ def test_long_loss_reanchors_the_world() -> None:
     assert back.world_epoch == 5 and back.valid and np.allclose(back.pose, np.eye(4))
     after = odo.process(frame(6, np.linalg.matrix_power(step, 6)))
     assert after.valid and errors(after.pose, vehicle_pose(step))[0] < 0.02
+
+
+def test_bad_inputs_raise_clear_errors_and_a_new_image_size_starts_a_new_world() -> None:
+    odo = StereoOdometry.from_config(Config())
+    good = frame(0, np.eye(4))
+    bad_calib = dataclasses.replace(good, calib=dataclasses.replace(good.calib, baseline=float("nan")))
+    with pytest.raises(CalibrationError):
+        odo.process(bad_calib)
+    with pytest.raises(InputError):
+        odo.process(dataclasses.replace(good, right=good.right[:, :-8]))
+    assert odo.process(good).world_epoch == 0
+    small = dataclasses.replace(good, frame_id=1, left=good.left[::2, ::2].copy(), right=good.right[::2, ::2].copy())
+    out = odo.process(small)
+    assert out.world_epoch == 1 and out.valid and np.allclose(out.pose, np.eye(4))
 
 
 def test_circle_rejects_a_planted_wrong_match() -> None:

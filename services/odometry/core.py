@@ -98,6 +98,9 @@ class StereoOdometry:
         """Vehicle pose for one stereo frame, following StereoScan's steps."""
         rig = rig_of(frame.calib)
         view = self.observe(frame)
+        if self.anchor is not None and self.anchor.left_gray.shape != view.left_gray.shape:
+            self.epoch += 1  # another camera (or resolution): nothing relates it to the old world
+            self.anchor = None
         if self.anchor is None:
             return self.start_world(frame, view)
         self.gap += 1
@@ -110,8 +113,11 @@ class StereoOdometry:
 
     def observe(self, frame: StereoFrame) -> StereoView:
         """Features in both images and their stereo matches (the circle's current leg)."""
-        if frame.left.shape != frame.right.shape or frame.left.ndim != 3:
-            raise InputError(f"stereo pair shapes differ or are not colour: {frame.left.shape} {frame.right.shape}")
+        if frame.left.shape != frame.right.shape or frame.left.ndim != 3 or frame.left.dtype != np.uint8:
+            raise InputError(
+                f"stereo pair must be two HxWx3 uint8 images of one size: {frame.left.shape} {frame.left.dtype}, "
+                f"{frame.right.shape} {frame.right.dtype}"
+            )
         left_gray, right_gray = to_gray(frame.left), to_gray(frame.right)
         left, right = self.detector.detect(left_gray), self.detector.detect(right_gray)
         l2r, r2l = match_stereo(left, right, self.cfg.min_disparity, self.cfg.max_disparity, self.cfg.row_tolerance_px)
