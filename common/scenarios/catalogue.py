@@ -43,7 +43,7 @@ def _oncoming(street: Street, d: float, seed_stream: int, speed: tuple[float, fl
 
 
 def urban(seed: int) -> World:
-    road = Road(y0=1.6, curve_start=70.0, radius=180.0, markings=CITY_MARKINGS)
+    road = Road(y0=1.6, curve_start=40.0, radius=120.0, markings=CITY_MARKINGS)
     street = Street(seed, road)
     rng = street.rng(1)
     for side, parking in ((-1, 0.35), (1, 0.65)):  # fewer parked cars hiding the near sidewalk
@@ -71,7 +71,7 @@ def crossing(seed: int) -> World:
     # walkers cross from both kerbs while the ego waits; they clear its lane before it moves off
     for k in range(8):
         side = -1 if k % 2 == 0 else 1
-        speed = rng.uniform(1.3, 1.6)
+        speed = rng.uniform(1.4, 1.8)
         start = 0.05 + 0.35 * k + rng.uniform(0, 0.3)
         width = 2 * (road.half_width + 1.0)
         path = Path(rng.uniform(*zebra), side * (road.half_width + 1.0), vd=-side * speed,
@@ -150,7 +150,7 @@ def lowtexture(seed: int) -> World:
 SCENARIOS: dict[str, Scenario] = {
     s.name: s
     for s in (
-        Scenario("urban", "city street, ego 9-11.5 m/s on a bend; parked and moving cars, walkers, a cyclist", urban),
+        Scenario("urban", "city street, ego 9-11.5 m/s into a bend; parked and moving cars, walkers, a cyclist", urban),
         Scenario("crossing", "stop-and-go at a zebra: walkers and two cars cross ahead; a lorry fills a third "
                  "of the view", crossing),
         Scenario("overtake", "three lanes one way at 12 m/s: overtaking, overtaken, lead and oncoming traffic "

@@ -15,6 +15,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -33,6 +34,7 @@ from common.progress import progress
 from common.recording import RecordingWriter
 from common.scenarios.catalogue import SCENARIOS, build
 from common.scenarios.render import Rendered, Renderer, Rig
+from common.scenarios.world import Look, World
 
 log = logging.getLogger(__name__)
 
@@ -80,12 +82,24 @@ def truth_objects(rendered: Rendered, frame: int, stamp: int) -> GroundTruthObje
     return GroundTruthObjects(frame_id=frame, stamp_ns=stamp, objects=objects, gt_complete=True)
 
 
+def scenario_world(scenario: str, seed: int, dusk: bool = False, look: dict[str, float] | None = None) -> World:
+    """The scenario's world, with the dusk look and any camera look fields (``noise_sigma``, ...) replaced."""
+    world = build(scenario, seed, dusk)
+    if look:
+        unknown = set(look) - {f.name for f in dataclasses.fields(Look)}
+        if unknown:
+            raise ConfigError(f"unknown look fields {sorted(unknown)}")
+        world = dataclasses.replace(world, look=dataclasses.replace(world.look, **look))
+    return world
+
+
 def frame_messages(scenario: str, frames: int, seed: int, size: tuple[int, int] = (640, 480),
-                   image_format: str = "png", dusk: bool = False, disparity_every: int = 1) -> Iterator[FrameMessages]:
+                   image_format: str = "png", dusk: bool = False, disparity_every: int = 1,
+                   look: dict[str, float] | None = None) -> Iterator[FrameMessages]:
     """Render a scenario frame by frame; the generator tests and other tools consume."""
     if image_format not in IMAGE_FORMATS:
         raise ConfigError(f"image format {image_format!r} unknown; choose from {', '.join(IMAGE_FORMATS)}")
-    world = build(scenario, seed, dusk)
+    world = scenario_world(scenario, seed, dusk, look)
     renderer = Renderer(world, Rig(width=size[0], height=size[1]))
     calib = renderer.calib
     for k in range(frames):
@@ -102,27 +116,30 @@ def frame_messages(scenario: str, frames: int, seed: int, size: tuple[int, int] 
         yield FrameMessages(stereo, ego, truth_objects(rendered, k, stamp), disparity, time.perf_counter() - start)
 
 
-def recording_info(scenario: str, seed: int, frames: int, size: tuple[int, int], disparity_every: int) -> dict:
+def recording_info(scenario: str, seed: int, frames: int, size: tuple[int, int], disparity_every: int,
+                   look: Look) -> dict[str, Any]:
     calib = Rig(width=size[0], height=size[1]).calibration()
     return {
         "source": "synthetic", "scenario": scenario, "seed": seed, "gt_complete": True,
         "frame_rate_hz": FRAME_RATE_HZ, "frames": frames, "volume": dataclasses.asdict(VolumeConfig()),
         "calib": {"fx": calib.fx, "fy": calib.fy, "cx": calib.cx, "cy": calib.cy, "baseline": calib.baseline,
                   "width": calib.width, "height": calib.height, "cam_to_vehicle": calib.cam_to_vehicle.tolist()},
-        "disparity_every": disparity_every,
+        "disparity_every": disparity_every, "look": dataclasses.asdict(look),
     }
 
 
 def simulate_to_file(scenario: str, out: Path, frames: int, seed: int, size: tuple[int, int] = (640, 480),
-                     image_format: str = "png", dusk: bool = False, disparity_every: int = 1) -> Path:
+                     image_format: str = "png", dusk: bool = False, disparity_every: int = 1,
+                     look: dict[str, float] | None = None) -> Path:
     """Render ``frames`` frames of a scenario into ``out`` (written atomically); returns ``out``."""
     if frames < 1:
         raise ConfigError(f"frames must be at least 1, got {frames}")
     out = Path(out)
     durations: list[float] = []
-    messages = frame_messages(scenario, frames, seed, size, image_format, dusk, disparity_every)
+    messages = frame_messages(scenario, frames, seed, size, image_format, dusk, disparity_every, look)
+    final_look = scenario_world(scenario, seed, dusk, look).look
     with RecordingWriter(out, atomic=True) as writer:
-        writer.describe(Config().to_dict(), recording_info(scenario, seed, frames, size, disparity_every))
+        writer.describe(Config().to_dict(), recording_info(scenario, seed, frames, size, disparity_every, final_look))
         for fm in progress(messages, frames, f"simulate {scenario}"):
             stamp = fm.stereo.stamp_ns
             writer.write(key_for("camera/stereo"), fm.stereo, log_time_ns=stamp)
@@ -143,6 +160,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--size", default="640x480", help="image size WIDTHxHEIGHT")
     parser.add_argument("--image-format", choices=IMAGE_FORMATS, default="png", help="how images are stored")
     parser.add_argument("--lowtexture", action="store_true", help="dusk look: dark, low contrast, noisy")
+    parser.add_argument("--noise", type=float, help="sensor noise sigma in grey levels (scenario default 1.5)")
+    parser.add_argument("--blur", type=float, help="optical blur sigma in pixels (scenario default 0.6)")
+    parser.add_argument("--exposure-ratio", type=float, help="right gain / left gain (scenario default 1.03)")
     parser.add_argument("--disparity-every", type=int, default=1, metavar="N",
                         help="store true disparity every N-th frame (0: never)")
     parser.add_argument("--list", action="store_true", help="list the scenarios and exit")
@@ -157,9 +177,13 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"unknown scenario {args.scenario!r}; valid: {', '.join(SCENARIOS)}")
     if args.out is None:
         raise ConfigError("--out FILE.mcap is required")
+    chosen = {"noise_sigma": args.noise, "blur_sigma": args.blur, "exposure_ratio": args.exposure_ratio}
+    look = {k: v for k, v in chosen.items() if v is not None}
+    if any(v < 0 for v in look.values()):
+        raise ConfigError(f"noise, blur and exposure ratio must not be negative: {look}")
     start = time.perf_counter()
     simulate_to_file(args.scenario, args.out, args.frames, args.seed, parse_size(args.size),
-                     args.image_format, args.lowtexture, args.disparity_every)
+                     args.image_format, args.lowtexture, args.disparity_every, look)
     print(f"wrote {args.out} ({args.out.stat().st_size / 1e6:.1f} MB, {args.frames} frames) "
           f"in {time.perf_counter() - start:.1f} s")
     return 0
