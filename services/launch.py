@@ -38,6 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", default=None, help="start only this host's services (default: all)")
     parser.add_argument("--check", action="store_true", help="validate the graph and exit (2 if it has problems)")
     parser.add_argument("--var", action="append", default=[], metavar="NAME=VALUE", help="fill a {placeholder}")
+    parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                        help="a configuration setting for every service of this host (repeatable)")
     parser.add_argument("--log-dir", type=Path, default=Path("runs/launch-logs"), help="one log file per service")
     parser.add_argument("--status-every", type=float, default=10.0, help="seconds between status lines")
     parser.add_argument("--wait-alive", type=float, default=60.0,
@@ -63,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
         return 0 if not errors else 2
     if errors:
         raise ConfigError("; ".join(errors))
-    sup = Supervisor(spec, args.host, args.log_dir)
+    extra = [arg for item in args.sets for arg in ("--set", item)]
+    sup = Supervisor(spec, args.host, args.log_dir, extra_args=extra)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

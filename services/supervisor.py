@@ -32,7 +32,7 @@ from services.launch_spec import LaunchSpec, ServiceSpec, endpoint_address
 log = logging.getLogger("stereovox.launch")
 
 ROUTER = "router"
-BACKOFF_START_S = 0.25
+BACKOFF_START_S = 0.1  # the first restart almost at once; a crash loop backs off to 8 s
 BACKOFF_MAX_S = 8.0
 STABLE_AFTER_S = 20.0  # a service up this long gets its backoff reset
 
@@ -187,15 +187,20 @@ class Supervisor:
                 log.info("%-14s exited with %d", child.name, code)
         return ended
 
-    def stop_child(self, name: str, sig: int = signal.SIGINT, timeout_s: float = 15.0) -> int | None:
-        """Stop one child and its group; SIGKILL if it does not end within ``timeout_s``."""
+    def stop_child(self, name: str, sig: int | None = signal.SIGINT, timeout_s: float = 15.0) -> int | None:
+        """Stop one child and its group; SIGKILL if it does not end within ``timeout_s``.
+
+        ``sig=None`` only waits: a second SIGINT would land while Python shuts down, with the
+        default handler back in place, and turn a clean exit into death by signal.
+        """
         child = self.children[name]
         child.done = True
         proc = child.proc
         if proc is None:
             return child.exit_codes[-1] if child.exit_codes else None
         if proc.poll() is None:
-            _signal_group(proc, sig)
+            if sig is not None:
+                _signal_group(proc, sig)
             try:
                 proc.wait(timeout_s)
             except subprocess.TimeoutExpired:
@@ -222,7 +227,7 @@ class Supervisor:
             if proc is not None and name != ROUTER:
                 _signal_group(proc, signal.SIGINT)
         for name in order:
-            self.stop_child(name, timeout_s=timeout_s)
+            self.stop_child(name, sig=signal.SIGINT if name == ROUTER else None, timeout_s=timeout_s)
 
     def status(self) -> str:
         """One line: every child's state, pid, restarts and last exit code."""
