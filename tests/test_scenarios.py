@@ -23,13 +23,13 @@ from common.scenarios.world import Path as RoadPath
 from services.cli import main as cli_main
 
 
-def _one_box_world() -> World:
+def _one_box_world(left: float = 1.013) -> World:
     """A flat road and one 1 x 1 x 3.03 m box whose near face is 10 m ahead, 0.513..1.513 m to the left.
 
     Edges fall between pixel centres, so no pixel sits exactly on a boundary.
     """
     part = Part((0.0, 0.0, 1.515), (1.0, 1.0, 3.03), Material((0.8, 0.2, 0.2)))
-    thing = Thing(1, "wall", (part,), (1.0, 1.0, 3.03), RoadPath(10.5, 1.013))
+    thing = Thing(1, "wall", (part,), (1.0, 1.0, 3.03), RoadPath(10.5, left))
     look = Look(noise_sigma=0.0, blur_sigma=0.0)
     return World("test", Road(y0=0.0), (thing,), EgoProfile((0.0, 1.0), (0.0, 0.0), d=0.0), look)
 
@@ -58,6 +58,17 @@ def test_known_point_appears_at_predicted_pixel_and_disparity() -> None:
     band = out.disparity[320]
     assert np.isnan(band[227:230]).all()
     assert band[225] == pytest.approx(21.333, abs=0.01)
+
+
+def test_visible_fraction_counts_the_part_outside_the_image() -> None:
+    """A box cut by the left border: its share visible equals what a wider camera sees of it."""
+    world = _one_box_world(left=5.333)  # front face from u = -30 to 30, side face to u = 56
+    narrow = Renderer(world, Rig()).render(0.0, np.random.default_rng(0))
+    wide = Renderer(world, Rig(width=1280)).render(0.0, np.random.default_rng(0))  # same rays, 320 px more each side
+    whole = wide.visible_pixels[1]
+    assert wide.visible_fraction[1] == pytest.approx(1.0, abs=0.02)
+    assert 0.4 < narrow.visible_pixels[1] / whole < 0.8
+    assert narrow.visible_fraction[1] == pytest.approx(narrow.visible_pixels[1] / whole, abs=0.02)
 
 
 @pytest.mark.timeout(120)
