@@ -108,9 +108,12 @@ def pose(matrix: NDArray) -> Pose:
     return Pose(position=_vec(matrix[:3, 3]), orientation=_quat(matrix[:3, :3]))
 
 
+#: the orientation of every axis-aligned box (a voxel map holds thousands: no conversion each).
+_UNTURNED = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+
+
 def _at(position: NDArray, rotation: NDArray | None = None) -> Pose:
-    rot = np.eye(3) if rotation is None else rotation
-    return Pose(position=_vec(position), orientation=_quat(rot))
+    return Pose(position=_vec(position), orientation=_UNTURNED if rotation is None else _quat(rotation))
 
 
 def transform(parent: str, child: str, matrix: NDArray, stamp_ns: int) -> FrameTransform:

@@ -28,7 +28,7 @@ STATIONARY: RGB = (30, 210, 50)
 ACCEPTANCE: RGB = (250, 210, 30)
 GHOST: RGB = (150, 150, 150)
 TRAJECTORY: RGB = (60, 150, 255)
-TRUTH: RGB = (235, 235, 235)
+TRUTH: RGB = (150, 150, 150)
 #: points nearer the camera than this (m) are not projected.
 NEAR_M = 0.2
 #: the velocity arrow shows the distance covered in this many seconds.
