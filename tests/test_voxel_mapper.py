@@ -114,11 +114,14 @@ def test_faces_apart_along_the_line_of_sight_are_one_cluster() -> None:
 
 
 def test_lone_noise_voxel_is_removed() -> None:
-    speck = (np.array([[12.1, 3.1, 1.1], [12.15, 3.12, 1.14], [12.2, 3.05, 1.2]], np.float32), noisy_colour(GREEN, 3))
+    rng = np.random.default_rng(6)
+    speck = ((np.array([12.05, 3.05, 1.05]) + rng.random((30, 3)) * 0.15).astype(np.float32), noisy_colour(GREEN, 30))
     out = mapper().process(cloud(road(), box((6, -1, 0), (8, 1, 1.5), RED), speck), ego())
     assert len(out.clusters) == 1
     assert out.clusters[0].centroid[0] == pytest.approx(7.0, abs=0.3)
     assert out.voxel_count > 1000  # the speck and the road are in the map, only not clustered
+    assert len(mapper(min_cluster_voxels=1).process(cloud(road(), box((6, -1, 0), (8, 1, 1.5), RED), speck),
+                                                    ego()).clusters) == 2
 
 
 def test_small_cluster_touching_a_big_one_is_merged() -> None:

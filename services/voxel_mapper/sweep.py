@@ -23,16 +23,30 @@ from common.messages import EgoMotion, PointCloud
 EDGES: tuple[float, ...] = (0.50, 0.25, 0.20, 0.15, 0.10)
 
 
+def scaled(cfg: Config, edge: float) -> Config:
+    """``cfg`` at another voxel edge, its count limits scaled from the 0.25 m defaults they were measured at.
+
+    Points per voxel grow with the face area (edge squared), voxels per object with its inverse, and a
+    gap in voxels with the inverse of the edge, so each limit keeps its meaning in metres.
+    """
+    out = copy.deepcopy(cfg)
+    ratio = float(edge) / cfg.voxel.edge
+    out.voxel.edge = float(edge)
+    out.voxel.min_points_per_voxel = max(1, round(cfg.voxel.min_points_per_voxel * ratio**2))
+    out.voxel.min_cluster_voxels = max(1, round(cfg.voxel.min_cluster_voxels / ratio**2))
+    out.voxel.bridge_voxels = max(1, round(cfg.voxel.bridge_voxels / ratio))
+    return out
+
+
 def edge_sweep(clouds: Sequence[PointCloud], egos: Sequence[EgoMotion], edges: Sequence[float] = EDGES,
                cfg: Config | None = None) -> list[dict[str, float]]:
-    """Median milliseconds per frame and median clusters per frame for each voxel edge."""
+    """Median milliseconds per frame and median clusters per frame for each voxel edge (limits scaled)."""
     from services.voxel_mapper.core import VoxelMapper
 
     base = cfg or Config()
     rows = []
     for edge in edges:
-        run_cfg = copy.deepcopy(base)
-        run_cfg.voxel.edge = float(edge)
+        run_cfg = scaled(base, edge)
         VoxelMapper.from_config(run_cfg).process(clouds[0], egos[0])  # compile / warm caches outside the timing
         mapper = VoxelMapper.from_config(run_cfg)
         times, counts, voxels = [], [], []
