@@ -116,6 +116,16 @@ def test_a_decoded_read_only_frame_gives_the_same_result(sets: dict[str, object]
     assert np.array_equal(decoded.left, frame.left)  # inputs untouched
 
 
+def test_strided_views_are_accepted() -> None:
+    frame = _scene()
+    wide_left, wide_right = np.repeat(frame.left, 2, axis=1), np.repeat(frame.right, 2, axis=1)
+    view = dataclasses.replace(frame, left=wide_left[:, ::2], right=wide_right[:, ::2])
+    assert not view.left.flags.c_contiguous
+    _, expected = _core().process(frame)
+    _, got = _core().process(view)
+    assert np.array_equal(expected.disparity, got.disparity, equal_nan=True)
+
+
 def test_fronto_parallel_wall_comes_out_flat() -> None:
     cloud, _ = _core().process(_scene())
     wall = cloud.points[cloud.points[:, 0] > (PLANE_DEPTH + BOX_DEPTH) / 2]

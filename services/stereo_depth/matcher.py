@@ -80,6 +80,7 @@ class MultiResolutionMatcher:
         return self._fuse(fine, coarse_left)
 
     def _intensity(self, rgb: Image) -> Image:
+        rgb = np.ascontiguousarray(rgb)  # OpenCV refuses views with strided columns
         return rgb if self.color else cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
 
     def _coarse(self, left: Image, right: Image) -> tuple[DisparityMap | None, DisparityMap | None]:
