@@ -3,6 +3,10 @@
 State is the last frame that could anchor a motion estimate (its features, stereo matches and
 grey images), the vehicle pose at that frame, and the last per-frame camera motion, which both
 predicts where features will reappear and bridges frames on which the estimate fails.
+
+Published covariance: 6x6 over (x, y, z, roll, pitch, yaw) of a right perturbation of ``delta``
+in the current vehicle frame (metres, radians), from the final LM Jacobian scaled by the residual
+variance; a predicted (invalid) step carries a deliberately vague diagonal instead.
 """
 
 from __future__ import annotations
