@@ -67,7 +67,9 @@ def compose(parts: FrameParts, obstacles: sv.Obstacles, trajectory: np.ndarray) 
         draw_track_on_image(image, ob, world_cam, frame.calib)
     moving = sum(o.moving for o in tracked)
     header = f"frame {frame.frame_id}  tracked {len(tracked)} ({moving} moving)"
-    cv2.putText(image, header, (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1, cv2.LINE_AA)
+    (w, h), _ = cv2.getTextSize(header, cv2.FONT_HERSHEY_SIMPLEX, 0.55, 1)
+    cv2.rectangle(image, (4, 4), (12 + w, 12 + h + 4), (0, 0, 0), -1)  # legible on sky and on road
+    cv2.putText(image, header, (8, 8 + h), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1, cv2.LINE_AA)
     view = BirdsEye(size_px=image.shape[0])
     panel = view.canvas()
     world_vehicle = invert(np.asarray(obstacles.ego_pose, dtype=np.float64))
