@@ -324,9 +324,9 @@ class Channels:
             self._channels[topic].log(message, log_time=log_time_ns)
             self.logged += 1
 
-    def watched(self) -> bool:
-        """Whether any sink (a subscribed viewer, an open file) takes some channel now."""
-        return any(channel.has_sinks() for channel in self._channels.values())
+    def watched(self, topics: Sequence[str]) -> bool:
+        """Whether any sink (a subscribed viewer, an open file) takes one of ``topics`` now."""
+        return any(self._channels[topic].has_sinks() for topic in topics)
 
     def close(self) -> None:
         for channel in self._channels.values():

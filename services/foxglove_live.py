@@ -21,8 +21,13 @@ log = logging.getLogger(__name__)
 
 #: inputs drawn whether or not anyone looks: they are small and carry the ego trajectory.
 ALWAYS: tuple[str, ...] = ("odometry/ego", "tracker/obstacles")
-#: inputs converted only while a client subscribes to some channel.
-ON_DEMAND: tuple[str, ...] = ("camera/stereo", "stereo_depth/points", "voxel_mapper/clusters", "groundtruth/objects")
+#: inputs converted only while a client subscribes to one of the Foxglove topics they feed.
+ON_DEMAND: dict[str, tuple[str, ...]] = {
+    "camera/stereo": ("/camera/left", "/camera/calibration"),
+    "stereo_depth/points": ("/points",),
+    "voxel_mapper/clusters": ("/voxels", "/clusters"),
+    "groundtruth/objects": ("/groundtruth/objects",),
+}
 
 
 class LiveView:
@@ -34,17 +39,17 @@ class LiveView:
         self.wakeup = threading.Event()
         self.subs: dict[str, LatestSubscriber[Any] | FifoSubscriber[Any]] = {
             topic: subscribe(session, sv.key_for(topic, vehicle), sv.TOPICS[topic], "newest", wakeup=self.wakeup)
-            for topic in ALWAYS + ON_DEMAND
+            for topic in (*ALWAYS, *ON_DEMAND)
         }
         self.converted = 0
 
-    def step(self, watched: bool) -> None:
+    def step(self) -> None:
         """Convert whatever arrived since the last step (waiting a little for something to)."""
         self.wakeup.wait(0.2)
         self.wakeup.clear()
         for topic, sub in self.subs.items():
             item = sub.recv(0.0)
-            if item is None or (topic in ON_DEMAND and not watched):
+            if item is None or (topic in ON_DEMAND and not self.channels.watched(ON_DEMAND[topic])):
                 continue
             self.channels.log(self.converter.convert(topic, item.msg))
             self.converted += 1
@@ -65,7 +70,7 @@ def serve(session: Any, vehicle: str, host: str, port: int, stop: threading.Even
     view = LiveView(session, vehicle, channels)
     try:
         while not stop.is_set():
-            view.step(channels.watched())
+            view.step()
     finally:
         view.close()
         channels.close()

@@ -146,6 +146,8 @@ def render_recording(run: Path, out: Path, frames: tuple[int, int] = (0, sys.max
                     renderer.write(parts, msg, np.array(positions))
                 for old in [f for f in pending if f < msg.frame_id]:
                     del pending[old]
+                if msg.frame_id >= stop - 1:
+                    break  # tracker output comes in frame order: nothing later is wanted
                 continue
             parts = pending.setdefault(msg.frame_id, FrameParts())
             if isinstance(msg, sv.StereoFrame):

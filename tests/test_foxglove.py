@@ -20,7 +20,7 @@ import pytest
 from conftest import REPO, Processes, free_port, stereovox_cmd, wait_for
 from foxglove_wire import WebSocket, decode, descriptors
 from mcap.reader import make_reader
-from tiny_run import MOVING, STATIONARY, ego_pose, write_run
+from tiny_run import CALIB, MOVING, STATIONARY, ego_pose, write_run
 
 from common import messages as sv
 from common.bus import Publisher, open_session
@@ -126,12 +126,19 @@ def test_live_server_advertises_foxglove_schemas_and_streams_obstacles(processes
         for topic, channel in channels.items():
             assert channel["encoding"] == "protobuf" and channel["schemaEncoding"] == "protobuf", channel
             assert channel["schemaName"] == f"foxglove.{TOPICS[topic].__name__}"
-        obstacles = channels["/obstacles"]
-        ws.send_json({"op": "subscribe", "subscriptions": [{"id": 42, "channelId": obstacles["id"]}]})
-        _, payload = _publish_until_received(ws, endpoint)
-        schema = descriptors(base64.b64decode(obstacles["schema"]))
-        update = decode(schema, "foxglove.SceneUpdate", payload[1 + 4 + 8 :])
+        obstacles, left = channels["/obstacles"], channels["/camera/left"]
+        ws.send_json({"op": "subscribe", "subscriptions": [{"id": 42, "channelId": obstacles["id"]},
+                                                           {"id": 43, "channelId": left["id"]}]})
+        tracks = sv.Obstacles(frame_id=1, stamp_ns=time.time_ns(), obstacles=[MOVING], ego_pose=np.eye(4))
+        payload = _publish_until_received(ws, endpoint, "tracker/obstacles", tracks, 42)
+        update = decode(descriptors(base64.b64decode(obstacles["schema"])), "foxglove.SceneUpdate", payload)
         assert [e["id"][0] for e in update["entities"]] == [f"obstacle/{MOVING.id}"]
+        image = np.full((CALIB.height, CALIB.width, 3), 90, dtype=np.uint8)
+        frame = sv.StereoFrame(frame_id=1, stamp_ns=time.time_ns(), left=image, right=image, calib=CALIB)
+        payload = _publish_until_received(ws, endpoint, "camera/stereo", frame, 43)
+        picture = decode(descriptors(base64.b64decode(left["schema"])), "foxglove.CompressedImage", payload)
+        assert picture["format"] == ["jpeg"] and picture["frame_id"] == ["camera"]
+        assert picture["data"][0][:2] == b"\xff\xd8"
     finally:
         ws.close()
 
@@ -144,18 +151,18 @@ def _listening(port: int) -> bool:
         return False
 
 
-def _publish_until_received(ws: WebSocket, endpoint: str) -> tuple[int, bytes]:
-    """Publish tracker output on the bus until the server forwards it to subscription 42."""
-    msg = sv.Obstacles(frame_id=1, stamp_ns=time.time_ns(), obstacles=[MOVING], ego_pose=np.eye(4))
+def _publish_until_received(ws: WebSocket, endpoint: str, topic: str, msg: sv.Message, subscription: int) -> bytes:
+    """Publish ``msg`` on the bus until the server forwards it on ``subscription``; its payload."""
     with open_session(BusConfig(mode="client", connect=[endpoint])) as session:
-        pub = Publisher(session, sv.key_for("tracker/obstacles"))
+        pub = Publisher(session, sv.key_for(topic))
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline:
             pub.put(msg)
             try:
-                return ws.recv_until(
-                    lambda op, p: op == 2 and p[0] == 1 and struct.unpack("<I", p[1:5])[0] == 42, 0.5
+                _, data = ws.recv_until(
+                    lambda op, p: op == 2 and p[0] == 1 and struct.unpack("<I", p[1:5])[0] == subscription, 0.5
                 )
+                return data[1 + 4 + 8 :]  # opcode, subscription id, log time, then the message
             except TimeoutError:
                 continue
-        pytest.fail("the live server never forwarded an Obstacles message")
+        pytest.fail(f"the live server never forwarded {topic}")
