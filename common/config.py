@@ -91,7 +91,7 @@ class OdometryConfig:
     coarse_cell_px: int = 16  # at most one of them per cell of this size
     row_tolerance_px: float = 1.0  # rectified epipolar constraint for stereo matches
     bucket_px: int = 50  # circle matches kept per bucket for the motion estimate
-    bucket_matches: int = 8
+    bucket_matches: int = 16
     subpixel_window: int = 11  # Lucas-Kanade refinement window (pixels)
     subpixel_stereo: bool = True  # LK-refine disparities too (off: integer disparities, 0.6 % less scale on KITTI)
     disparity_offset_px: float = 0.0  # added to every disparity: a rig's bias measured against lidar
