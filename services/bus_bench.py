@@ -7,17 +7,27 @@ it, in wall-clock time on one machine — what a stage downstream of the camera 
 A paced run (``rate_hz`` > 0) gives latency without queueing; ``rate_hz=0`` sends flat out and
 gives the throughput (with BLOCK congestion control nothing is dropped, so queueing shows up as
 latency there instead).
+
+Topologies, to price each network hop of a deployment: direct peer to peer (the default), both
+sides clients of a router (``router=ENDPOINT``, or ``--via-router`` to start one on loopback), and
+either of them across computers (``--listen-host`` for the receiver's address, ``--sender-prefix``
+to start the sender elsewhere, e.g. ``ip netns exec NS``). Latency across computers is only as
+good as their common clock (deploy/README.md).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import socket
 import subprocess
 import sys
 import time
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -41,6 +51,7 @@ class BenchResult:
     latency_p99_ms: float
     latency_max_ms: float
     frames_per_s: float
+    topology: str = "peer"  # peer | router
 
 
 def random_frame(frame_id: int, width: int, height: int, image_format: str, rng: np.random.Generator) -> StereoFrame:
@@ -92,15 +103,28 @@ def measure(
     port: int = 0,
     timeout_s: float = 120.0,
     shared_memory: bool = False,
+    router: str = "",
+    listen_host: str = "127.0.0.1",
+    sender_prefix: Sequence[str] = (),
 ) -> BenchResult:
-    """Receive ``frames`` stereo frames from a sender process over loopback TCP and time them."""
-    listen = f"tcp/127.0.0.1:{port or _free_port()}"
-    with open_session(BusConfig(mode="peer", listen=[listen], shared_memory=shared_memory)) as session:
+    """Receive ``frames`` stereo frames from a sender process and time them.
+
+    Peer to peer by default (the receiver listens on ``listen_host``); with ``router`` both sides
+    are clients of that router, so every frame crosses two TCP hops instead of one.
+    """
+    if router:
+        bus = BusConfig(mode="client", connect=[router], shared_memory=shared_memory)
+        connect, sender_mode = router, ["--client"]
+    else:
+        connect = f"tcp/{listen_host}:{port or _free_port()}"
+        bus = BusConfig(mode="peer", listen=[connect], shared_memory=shared_memory)
+        sender_mode = []
+    with open_session(bus) as session:
         sub = subscribe(session, key_for(TOPIC), StereoFrame, "fifo", depth=frames + 8)
-        cmd = [sys.executable, "-m", "services.bus_bench", "--send", "--connect", listen, "--frames", str(frames),
-               "--rate", str(rate_hz), "--width", str(width), "--height", str(height), "--format", image_format,
-               *(["--shm"] if shared_memory else [])]
-        sender = subprocess.Popen(cmd, start_new_session=True)
+        cmd = [*sender_prefix, sys.executable, "-m", "services.bus_bench", "--send", "--connect", connect,
+               "--frames", str(frames), "--rate", str(rate_hz), "--width", str(width), "--height", str(height),
+               "--format", image_format, *sender_mode, *(["--shm"] if shared_memory else [])]
+        sender = subprocess.Popen(cmd, start_new_session=True, cwd=Path(__file__).resolve().parent.parent)
         latencies, arrivals, size = [], [], 0
         try:
             deadline = time.monotonic() + timeout_s
@@ -126,7 +150,37 @@ def measure(
         shared_memory=shared_memory, payload_bytes=size, latency_p50_ms=round(float(np.percentile(lat, 50)), 3),
         latency_p99_ms=round(float(np.percentile(lat, 99)), 3), latency_max_ms=round(float(lat.max()), 3),
         frames_per_s=round((len(arrivals) - 1) / span_s, 1) if span_s > 0 else 0.0,
+        topology="router" if router else "peer",
     )
+
+
+@contextmanager
+def local_router() -> Iterator[str]:
+    """A ``stereovox router`` process on a free loopback port, with the deploy JSON5; yields its endpoint."""
+    repo = Path(__file__).resolve().parent.parent
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "services.cli", "router", "--listen", endpoint,
+         "--config", str(repo / "deploy" / "zenoh" / "router.json5")],
+        cwd=repo, stdout=subprocess.DEVNULL, start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                with socket.create_connection(("127.0.0.1", int(endpoint.rsplit(":", 1)[1])), timeout=0.5):
+                    break
+            except OSError:
+                if proc.poll() is not None or time.monotonic() > deadline:
+                    raise BusError(f"router on {endpoint} did not start (exit {proc.poll()})") from None
+                time.sleep(0.05)
+        yield endpoint
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -141,12 +195,27 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--height", type=int, default=480)
     parser.add_argument("--format", default="raw", choices=("raw", "png", "jpeg"))
     parser.add_argument("--shm", action="store_true", help="Zenoh shared memory on both sides (bus.shared_memory)")
+    parser.add_argument("--client", action="store_true", help="sender: be a client of the router at --connect")
+    hop = parser.add_mutually_exclusive_group()
+    hop.add_argument("--router", default="", metavar="ENDPOINT", help="both sides clients of this router")
+    hop.add_argument("--via-router", action="store_true", help="start a router on loopback, both sides its clients")
+    parser.add_argument("--listen-host", default="127.0.0.1", help="peer receiver's address (default loopback)")
+    parser.add_argument("--sender-prefix", default="", help="command prefix for the sender, e.g. 'ip netns exec A'")
     args = parser.parse_args(argv)
     if args.send:
-        bus = BusConfig(mode="peer", connect=[args.connect], listen=["tcp/127.0.0.1:0"], shared_memory=args.shm)
+        mode = "client" if args.client else "peer"
+        listen = [] if args.client else ["tcp/127.0.0.1:0"]
+        bus = BusConfig(mode=mode, connect=[args.connect], listen=listen, shared_memory=args.shm)
         send(bus, args.frames, args.rate, args.width, args.height, args.format, args.topic)
         return 0
-    result = measure(args.frames, args.rate, args.width, args.height, args.format, args.port, shared_memory=args.shm)
+    kwargs = {"shared_memory": args.shm, "listen_host": args.listen_host,
+              "sender_prefix": shlex.split(args.sender_prefix)}
+    shape = (args.frames, args.rate, args.width, args.height, args.format, args.port)
+    if args.via_router:
+        with local_router() as endpoint:
+            result = measure(*shape, router=endpoint, **kwargs)
+    else:
+        result = measure(*shape, router=args.router, **kwargs)
     print(json.dumps(asdict(result)))
     return 0
 

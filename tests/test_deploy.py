@@ -269,3 +269,36 @@ def test_killed_service_comes_back_and_the_pipeline_goes_on(
 def _pids(processes: Processes, launch: subprocess.Popen[bytes]) -> dict[str, int]:
     """The newest pid the launcher logged for each service."""
     return {m.group(1): int(m.group(2)) for m in re.finditer(r"(\w+)\s+started pid (\d+)", processes.log(launch))}
+
+
+# ---------------------------------------------------------------- Zenoh files
+
+
+def test_router_takes_its_endpoints_from_the_json5_file() -> None:
+    from services.router import router_bus
+
+    bus = router_bus([], [], str(DEPLOY / "zenoh" / "router.json5"), [])
+    assert bus.mode == "router" and bus.listen == ["tcp/127.0.0.1:7447"]
+    assert router_bus(["tcp/127.0.0.1:9"], [], str(DEPLOY / "zenoh" / "router.json5"), []).listen == ["tcp/127.0.0.1:9"]
+
+
+@pytest.mark.timeout(60)
+def test_a_client_started_before_the_router_waits_for_it(processes: Processes) -> None:
+    """client.json5 keeps trying: the second computer may boot before the router's."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    bus = BusConfig(mode="client", connect=[endpoint], zenoh_config=str(DEPLOY / "zenoh" / "client.json5"))
+    opened: list[float] = []
+
+    def client() -> None:
+        with open_session(bus):
+            opened.append(time.monotonic())
+
+    thread = threading.Thread(target=client, daemon=True)
+    thread.start()
+    time.sleep(0.5)  # the client is now retrying against a closed port (the point of the test, not a wait)
+    assert not opened
+    router = processes.start(stereovox_cmd("router", "--config", str(DEPLOY / "zenoh" / "router.json5"),
+                                           "--listen", endpoint), "router")
+    thread.join(30)
+    assert opened, f"the client gave up before the router came: {processes.log(router)}"
+    assert processes.stop(router) == 0
