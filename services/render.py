@@ -27,6 +27,9 @@ from common.progress import progress
 from common.recording import open_recording, peek_stamp
 
 NEEDED = ("camera/stereo", "voxel_mapper/clusters", "groundtruth/objects", "tracker/obstacles")
+#: zlib level of the PNGs: writing dominated the time per frame at OpenCV's default (3); level 1
+#: wrote a 1120x480 frame ~25 % faster at about the same size (measured here).
+PNG_LEVEL = 1
 #: frames kept waiting for their obstacles before the oldest is given up (the tracker dropped it).
 MAX_PENDING = 64
 
@@ -97,7 +100,7 @@ class Renderer:
         started = time.perf_counter()
         bgr = cv2.cvtColor(compose(parts, obstacles, trajectory), cv2.COLOR_RGB2BGR)
         path = self.out / f"frame_{obstacles.frame_id:06d}.png"
-        if not cv2.imwrite(str(path), bgr):
+        if not cv2.imwrite(str(path), bgr, [cv2.IMWRITE_PNG_COMPRESSION, PNG_LEVEL]):
             raise InputError(f"cannot write {path}")
         self.written.append(path)
         if self.video_path is not None:
