@@ -271,7 +271,7 @@ class Converter:
     otherwise (a recording of the tracker alone still shows where the vehicle went).
     """
 
-    def __init__(self, max_trajectory: int = 100_000) -> None:
+    def __init__(self, max_trajectory: int = 5000) -> None:
         self.max_trajectory = max_trajectory
         self._positions: list[NDArray] = []
         self._last_frame = -1

@@ -160,6 +160,9 @@ def watch(session: Any, vehicle: str, view: VehicleView, stop: threading.Event, 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
+    parser.add_argument("--config", metavar="FILE", help="configuration file (bus credentials, Zenoh TLS file)")
+    parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a configuration key, e.g. bus.user=monitor (repeatable)")
     parser.add_argument("--vehicle", default=sv.DEFAULT_VEHICLE, help="vehicle name in the keys (default ego)")
     parser.add_argument("--once", action="store_true", help="print one snapshot and exit (scripts, tests)")
     parser.add_argument("--timeout", type=float, default=20.0, help="--once: seconds to wait for a full snapshot")
@@ -169,7 +172,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    cfg = bus_config(args)
+    cfg = bus_config(args, args.sets, args.config)
     cfg.bus.vehicle = args.vehicle
     if args.mode is None and cfg.bus.connect:
         cfg.bus.mode = "client"  # a monitor joins a router; it never becomes part of the vehicle's mesh

@@ -11,7 +11,9 @@ import pytest
 from conftest import REPO, stereovox_cmd
 from tiny_run import CALIB, GREY, HEIGHT, MOVING, STATIONARY, WIDTH, ego_pose, write_run
 
+from common import messages as sv
 from common.errors import InputError
+from common.recording import RecordingWriter
 from services.render import parse_range, render_recording
 
 
@@ -104,3 +106,15 @@ def test_video_and_frame_ranges(rendered: Path, tmp_path: Path) -> None:
         parse_range("3:1")
     with pytest.raises(InputError):
         parse_range("a:b")
+
+
+@pytest.mark.timeout(60)
+def test_a_run_without_camera_frames_renders_nothing_and_says_so(tmp_path: Path) -> None:
+    path = tmp_path / "tracks_only.mcap"
+    with RecordingWriter(path) as writer:
+        writer.write(sv.key_for("tracker/obstacles"), sv.Obstacles(frame_id=0, stamp_ns=1, obstacles=[MOVING]))
+    proc = subprocess.run(stereovox_cmd("render", str(path), "--out", str(tmp_path / "out")),
+                          capture_output=True, text=True, cwd=REPO, timeout=45)
+    assert proc.returncode == 1
+    assert "no frame" in proc.stderr and "camera image" in proc.stderr
+    assert not list((tmp_path / "out").glob("*.png"))
