@@ -134,17 +134,20 @@ class TrackerConfig:
     w_size: float = 0.5
     w_density: float = 0.5
     gate: float = 3.0  # association threshold on the weighted distance
+    position_gate: float = 3.5  # pairs further apart than this many standard deviations never associate
     accept_frames: int = 3
     ghost_frames: int = 5
     moving_on_mps: float = 0.7  # evaluation: moving >= 1.0 m/s, stationary < 0.3 m/s
     moving_off_mps: float = 0.4
-    moving_sigma_k: float = 1.5  # turn moving only when speed - k * speed std > moving_on_mps
+    moving_sigma_k: float = 1.5  # the label follows speed - k * speed std (minus the box-growth slide)
+    moving_min_frames: int = 4  # frames of track before it may be called moving
     process_noise: float = 1.0  # horizontal acceleration std (m/s^2)
     process_noise_z: float = 0.1  # vertical acceleration std (m/s^2): obstacles stay on the road
     measurement_noise: float = 0.15  # centroid std (m) across the viewing ray, and near
     range_noise_per_m2: float = 0.0005  # added std along the ray per squared metre of range (stereo)
     initial_speed_std: float = 5.0  # horizontal velocity std of a new track (m/s)
     initial_vertical_speed_std: float = 0.3  # its vertical velocity std (m/s)
+    noise_adaptation: float = 0.3  # weight of the newest normalised innovation in a track's noise scale (0 = off)
     appearance_smoothing: float = 0.5  # weight of the newest cluster in a track's colour/size/density
     frame_period_s: float = 0.1  # time step when stamps cannot give one
 

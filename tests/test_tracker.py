@@ -13,7 +13,7 @@ from common.config import Config
 from common.geometry import make_pose, rot_z
 from common.messages import Cluster, Clusters, EgoMotion, Obstacles, decode, encode
 from services.tracker import Tracker, kalman
-from services.tracker.association import Weights, distance_matrix, greedy_pairs
+from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
 
 EDGE = 0.25
 PERIOD_NS = 100_000_000
@@ -102,16 +102,28 @@ def test_greedy_leaves_pairs_over_the_threshold_unassociated() -> None:
 
 
 def test_distance_terms_are_weighted_as_configured() -> None:
-    w = Weights(position=1.0, color=0.0, size=0.0, density=0.0, gate=3.0)
+    w = Weights(position=1.0, color=0.0, size=0.0, density=0.0, gate=3.0, position_gate=10.0)
     grey, unit = np.zeros((1, 3)), np.ones((1, 3))
     args_t = (np.array([[0.0, 0, 0]]), grey, grey, unit, np.array([0.5]))
     args_c = (np.array([[3.0, 4, 0], [0, 0, 1]]), np.zeros((2, 3)), np.zeros((2, 3)), np.ones((2, 3)), np.full(2, 0.5))
-    assert np.allclose(distance_matrix(w, *args_t, *args_c), [[5.0, 1.0]])
+    # position counts in standard deviations of the pair's offset
+    assert np.allclose(distance_matrix(w, np.full((1, 2), 0.25), *args_t, *args_c), [[10.0, 2.0]])
+    # beyond the position gate a pair is never associated, however alike
+    w = Weights(position=0.0, color=0.0, size=0.0, density=0.0, gate=3.0, position_gate=3.0)
+    d = distance_matrix(w, np.full((1, 2), 1.0), *args_t, *args_c)
+    assert np.isinf(d[0, 0]) and d[0, 1] == 0.0
     # hue is circular: 0.95 and 0.05 are 0.1 apart
-    w = Weights(position=0.0, color=1.0, size=0.0, density=0.0, gate=3.0)
+    w = Weights(position=0.0, color=1.0, size=0.0, density=0.0, gate=3.0, position_gate=3.0)
     hsl_t, hsl_c = np.array([[0.95, 0.5, 0.5]]), np.array([[0.05, 0.5, 0.5]])
-    d = distance_matrix(w, args_t[0], grey, hsl_t, *args_t[3:], args_t[0], grey, hsl_c, *args_t[3:])
+    d = distance_matrix(w, np.ones((1, 1)), args_t[0], grey, hsl_t, *args_t[3:], args_t[0], grey, hsl_c, *args_t[3:])
     assert np.allclose(d, [[0.1]])
+
+
+def test_position_variance_grows_with_track_uncertainty_and_range() -> None:
+    r = np.stack([np.eye(3) * 0.01, np.eye(3) * 0.25])
+    p = np.stack([np.eye(3) * 0.04, np.eye(3) * 1.0])
+    var = position_variance(p, np.ones(2), np.ones((2, 3)), r, np.ones((2, 3)))
+    assert np.allclose(var, [[0.05, 0.29], [1.01, 1.25]])
 
 
 def test_two_crossing_colours_keep_their_identities() -> None:
@@ -310,8 +322,8 @@ def test_invalid_egomotion_predicts_without_correcting() -> None:
     tracker = new_tracker()
     for k in range(10):
         step(tracker, k, [cluster(0, (10.0, 0.0, 0.75))])
-    # an invalid pose puts the cluster 3 m off: kept associated, but not believed
-    out = step(tracker, 10, [cluster(0, (11.5, 0.0, 0.75))], valid=False)
+    # an invalid pose puts the cluster 0.5 m off (5 m/s if believed): kept associated, not believed
+    out = step(tracker, 10, [cluster(0, (10.5, 0.0, 0.75))], valid=False)
     (o,) = out.obstacles
     assert o.state == "tracked" and not o.moving and o.speed < 0.3
     assert tracker.counters["ego_invalid"] == 1

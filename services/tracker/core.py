@@ -27,8 +27,8 @@ import numpy.typing as npt
 from common.config import Config, VolumeConfig
 from common.messages import Clusters, EgoMotion, Obstacle, Obstacles
 from services.tracker import kalman
-from services.tracker.association import Weights, distance_matrix, greedy_pairs
-from services.tracker.measurement import stereo_covariance, touches_volume, visibility_covariance
+from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
+from services.tracker.measurement import cut_covariance, stereo_covariance, visibility_covariance
 from services.tracker.motion_state import (
     SLIDE_SMOOTHING,
     EgoVelocity,
@@ -72,6 +72,7 @@ class Tracker:
         range_noise_per_m2: float,
         initial_velocity_std: tuple[float, float, float],
         volume: VolumeConfig,
+        noise_adaptation: float,
         appearance_smoothing: float,
         frame_period_s: float,
     ) -> None:
@@ -84,6 +85,7 @@ class Tracker:
         self.range_noise_per_m2 = range_noise_per_m2
         self.velocity_var = np.asarray(initial_velocity_std, dtype=np.float64) ** 2
         self.volume = volume
+        self.noise_adaptation = noise_adaptation
         self.smoothing = appearance_smoothing
         self.frame_period_s = frame_period_s
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
@@ -98,15 +100,16 @@ class Tracker:
     def from_config(cls, cfg: Config) -> Tracker:
         t = cfg.tracker
         return cls(
-            weights=Weights(t.w_position, t.w_color, t.w_size, t.w_density, t.gate),
+            weights=Weights(t.w_position, t.w_color, t.w_size, t.w_density, t.gate, t.position_gate),
             accept_frames=t.accept_frames,
             ghost_frames=t.ghost_frames,
-            hysteresis=Hysteresis(t.moving_on_mps, t.moving_off_mps, t.moving_sigma_k),
+            hysteresis=Hysteresis(t.moving_on_mps, t.moving_off_mps, t.moving_sigma_k, t.moving_min_frames),
             accel_std=(t.process_noise, t.process_noise, t.process_noise_z),
             measurement_std=t.measurement_noise,
             range_noise_per_m2=t.range_noise_per_m2,
             initial_velocity_std=(t.initial_speed_std, t.initial_speed_std, t.initial_vertical_speed_std),
             volume=cfg.volume,
+            noise_adaptation=t.noise_adaptation,
             appearance_smoothing=t.appearance_smoothing,
             frame_period_s=t.frame_period_s,
         )
@@ -118,14 +121,14 @@ class Tracker:
         dt, elapsed = self._time_step(clusters)
         trusted = self._observe_ego(ego)
         obs = self._observe(clusters)
+        r = self._cluster_cov(obs, self._placement_pose(clusters, ego), clusters.voxel_edge)
         self._predict(dt)
-        rows, cols = self._associate(obs)
-        pose = self._placement_pose(clusters, ego)
+        rows, cols = self._associate(obs, r)
         if trusted:
-            self._correct(rows, obs.take(cols), self._measurement_cov(obs.take(cols), rows, pose, clusters.voxel_edge))
+            self._correct(rows, obs.take(cols), r[cols])
         self._advance_queues(rows, elapsed)
-        fresh = obs.take(np.setdiff1d(np.arange(len(obs)), cols))
-        self._spawn(fresh, self._measurement_cov(fresh, None, pose, clusters.voxel_edge))
+        fresh = np.setdiff1d(np.arange(len(obs)), cols)
+        self._spawn(obs.take(fresh), r[fresh])
         if trusted:
             self._label_motion(clusters.voxel_edge)
         return self._report(clusters, ego)
@@ -187,10 +190,12 @@ class Tracker:
         if len(t):
             t.x, t.p = kalman.predict(t.x, t.p, kalman.transition(dt), kalman.process_noise(dt, self.accel_std))
 
-    def _associate(self, obs: Observations) -> tuple[NDArray, NDArray]:
+    def _associate(self, obs: Observations, r: NDArray) -> tuple[NDArray, NDArray]:
         t = self.tracks
+        extent = t.bbox_max - t.bbox_min
+        var = position_variance(t.p[:, 0:3, 0:3], np.maximum(t.nis, 1.0), extent, r, obs.extent)
         d = distance_matrix(
-            self.weights,
+            self.weights, var,
             t.x[:, 0:3] + t.offset, t.rgb, t.hsl, t.extent, t.density,
             obs.centroid, obs.rgb, obs.hsl, obs.extent, obs.density,
         )  # fmt: skip
@@ -204,19 +209,22 @@ class Tracker:
                 return np.asarray(pose, dtype=np.float64)
         return np.eye(4)
 
-    def _measurement_cov(self, obs: Observations, rows: NDArray | None, pose: NDArray, voxel_edge: float) -> NDArray:
-        """How far each centroid can be trusted (measurement.py); ``rows`` = its track, None = new."""
-        cut = touches_volume(obs.bbox_min, obs.bbox_max, pose, self.volume, voxel_edge)
-        t = self.tracks
-        prev = obs.extent if rows is None else t.bbox_max[rows] - t.bbox_min[rows]
+    def _cluster_cov(self, obs: Observations, pose: NDArray, voxel_edge: float) -> NDArray:
+        """How far each centroid can be trusted from the cluster alone (measurement.py)."""
         r = stereo_covariance(obs.centroid, pose[0:3, 3], self.measurement_std, self.range_noise_per_m2)
-        return r + visibility_covariance(obs.extent, prev, cut)
+        return r + cut_covariance(obs.bbox_min, obs.bbox_max, pose, self.volume, voxel_edge)
 
     def _correct(self, rows: NDArray, obs: Observations, r: NDArray) -> None:
         """Kalman correction of the associated tracks with their clusters' centroids."""
         if len(rows) == 0:
             return
         t = self.tracks
+        r = r + visibility_covariance(obs.extent, t.bbox_max[rows] - t.bbox_min[rows])
+        # adaptive noise: a cluster whose centroid keeps jumping by more than its covariance says
+        # (a fragment of a split object, changing membership) is believed that much less
+        nis = kalman.normalised_innovation(t.x[rows], t.p[rows], obs.centroid, r)
+        t.nis[rows] += self.noise_adaptation * (nis - t.nis[rows])
+        r = r * np.maximum(t.nis[rows], 1.0)[:, None, None]
         x, p = kalman.update(t.x[rows], t.p[rows], obs.centroid, r)
         t.x[rows], t.p[rows] = x, p
         t.offset[rows] = obs.centroid - x[:, 0:3]
@@ -257,6 +265,7 @@ class Tracker:
                 misses=np.zeros(n, dtype=np.int64),
                 age=np.ones(n, dtype=np.int64),
                 moving=np.zeros(n, dtype=bool),
+                nis=np.ones(n),
                 rgb=obs.rgb.copy(),
                 hsl=obs.hsl.copy(),
                 extent=obs.extent,
@@ -273,7 +282,7 @@ class Tracker:
         t = self.tracks
         speed, sigma = speed_and_sigma(t.x[:, 3:6], t.p[:, 3:6, 3:6])
         slide = slide_speed(t.bbox_max - t.bbox_min, t.extent_slow, self.frame_period_s, voxel_edge)
-        t.moving = label(t.moving, speed, sigma, slide, self.hysteresis)
+        t.moving = label(t.moving, speed, sigma, slide, t.age, self.hysteresis)
 
     # ------------------------------------------------------------------ output
 

@@ -55,6 +55,13 @@ def predict(x: F64, p: F64, f: F64, q: F64) -> tuple[F64, F64]:
     return x_new, p_new
 
 
+def normalised_innovation(x: F64, p: F64, z: F64, r: F64) -> F64:
+    """Squared innovation over its predicted covariance, per measured dimension (n,): 1 when consistent."""
+    y = z - x[:, 0:3]
+    s = p[:, 0:3, 0:3] + r
+    return np.einsum("ni,ni->n", y, np.linalg.solve(s, y[:, :, None])[:, :, 0]) / 3.0
+
+
 def update(x: F64, p: F64, z: F64, r: F64) -> tuple[F64, F64]:
     """Correct ``n`` states with position measurements ``z`` (n, 3) of covariance ``r`` (3, 3) or (n, 3, 3).
 

@@ -10,7 +10,7 @@ Three things move a centroid while the object stands still, and each gets its ow
   extent changed by ``de`` the centroid is given a further standard deviation of ``de``;
 - the volume of interest: a cluster touching its boundary is cut by it, and the cut slides with
   the vehicle (a parked car entering at the far end grows at the vehicle's speed); its centroid
-  only says where the object is to within its own extent.
+  only says where the object is to within its own extent, along the axis the cut crosses.
 The filter then reads a velocity only out of what a rigid object's centroid does, and the speed's
 standard deviation it reports stays honest, which the moving label relies on.
 """
@@ -40,27 +40,28 @@ def stereo_covariance(points: NDArray, eye: NDArray, base_std: float, per_m2: fl
     return base_std**2 * np.eye(3) + along[:, None, None] * unit[:, :, None] * unit[:, None, :]
 
 
-def touches_volume(bbox_min: NDArray, bbox_max: NDArray, pose: NDArray, volume: VolumeConfig, margin: float) -> NDArray:
-    """(n,) whether a world-frame box reaches within ``margin`` of the volume's sides, near or far end.
+def cut_covariance(bbox_min: NDArray, bbox_max: NDArray, pose: NDArray, volume: VolumeConfig, margin: float) -> NDArray:
+    """(n, 3, 3): along each vehicle axis where a box reaches the volume's limits, its own extent squared.
 
-    The road below and the sky above do not cut obstacles sideways, so only x and y limits count.
+    A box reaching within ``margin`` of the near or far end is cut along the vehicle's x, one
+    reaching a side along its y; across the cut the centroid is as good as ever. The road below
+    and the sky above do not cut obstacles sideways, so z limits do not count.
     """
     corners = bbox_min[:, None, :] + _CORNERS[None] * (bbox_max - bbox_min)[:, None, :]
     to_vehicle = invert(pose)
     local = corners @ to_vehicle[0:3, 0:3].T + to_vehicle[0:3, 3]
-    x, y = local[..., 0], local[..., 1]
-    return (
-        (x.min(axis=1) <= volume.x_min + margin)
-        | (x.max(axis=1) >= volume.x_max - margin)
-        | (np.abs(y).max(axis=1) >= volume.y_half - margin)
-    )
+    lo, hi = local.min(axis=1), local.max(axis=1)
+    cut_x = (lo[:, 0] <= volume.x_min + margin) | (hi[:, 0] >= volume.x_max - margin)
+    cut_y = np.maximum(-lo[:, 1], hi[:, 1]) >= volume.y_half - margin
+    var_x = np.where(cut_x, (hi[:, 0] - lo[:, 0]) ** 2, 0.0)
+    var_y = np.where(cut_y, (hi[:, 1] - lo[:, 1]) ** 2, 0.0)
+    ax, ay = pose[0:3, 0], pose[0:3, 1]
+    return var_x[:, None, None] * np.outer(ax, ax) + var_y[:, None, None] * np.outer(ay, ay)
 
 
-def visibility_covariance(extent: NDArray, prev_extent: NDArray, cut: NDArray) -> NDArray:
-    """(n, 3, 3) diagonal: extent change per axis, or the whole extent for a cut cluster."""
-    std = np.abs(extent - prev_extent)
-    std = np.where(cut[:, None], np.maximum(std, extent), std)
-    out = np.zeros((len(std), 3, 3))
+def visibility_covariance(extent: NDArray, prev_extent: NDArray) -> NDArray:
+    """(n, 3, 3) diagonal: the change of the box's extent along each axis, squared."""
+    out = np.zeros((len(extent), 3, 3))
     idx = np.arange(3)
-    out[:, idx, idx] = std**2
+    out[:, idx, idx] = (extent - prev_extent) ** 2
     return out

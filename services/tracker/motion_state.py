@@ -1,10 +1,12 @@
 """Moving or stationary from the filtered absolute speed, with hysteresis and its uncertainty.
 
 Speed is horizontal: ground obstacles move on the road, and the vertical velocity of a centroid is
-only the noise of what part of the object is visible. A track turns moving only once its speed is
-above ``on`` by ``k`` standard deviations, so a young track whose velocity is still a guess is not
-called moving; it turns stationary once its speed falls below ``off``. Between the two it keeps
-its label.
+only the noise of what part of the object is visible. The label follows a cautious lower bound of
+the speed, ``speed - k * sigma - slide``: a track turns moving once that bound is above ``on``, so
+a young track whose velocity is still a guess is not called moving, and turns stationary once it
+falls below ``off`` (a noisy track hovering at 0.5 m/s does not stay moving for ever); between
+the two it keeps its label. It also needs ``min_frames`` frames of track: the first velocity is
+two centroids apart, and a cluster changing shape in between fools any noise model.
 
 A box that keeps growing (a parked car's side coming into view, an occluder moving away) drags
 its centroid at up to half the growth rate while the object stands still, steadily, so no noise
@@ -33,6 +35,7 @@ class Hysteresis:
     on: float
     off: float
     sigma_k: float
+    min_frames: int
 
 
 def speed_and_sigma(velocity: NDArray, velocity_cov: NDArray) -> tuple[NDArray, NDArray]:
@@ -60,11 +63,13 @@ def slide_speed(extent: NDArray, extent_slow: NDArray, period_s: float, voxel_ed
     return 0.5 * np.linalg.norm(growth, axis=1) / lag
 
 
-def label(moving: NDArray, speed: NDArray, sigma: NDArray, slide: NDArray, rule: Hysteresis) -> NDArray:
+def label(
+    moving: NDArray, speed: NDArray, sigma: NDArray, slide: NDArray, age: NDArray, rule: Hysteresis
+) -> NDArray:
     """New moving flags from the previous ones."""
-    turn_on = speed - rule.sigma_k * sigma - slide > rule.on
-    turn_off = speed < rule.off
-    return np.where(moving, ~turn_off, turn_on)
+    bound = speed - rule.sigma_k * sigma - slide
+    turn_on = (bound > rule.on) & (age >= rule.min_frames)
+    return np.where(moving, bound >= rule.off, turn_on)
 
 
 class EgoVelocity:

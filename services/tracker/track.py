@@ -37,6 +37,7 @@ class TrackTable:
     misses: NDArray = _empty(dtype=np.int64)  # frames since last seen
     age: NDArray = _empty(dtype=np.int64)  # frames since birth
     moving: NDArray = _empty(dtype=bool)
+    nis: NDArray = _empty()  # running mean of the normalised innovation: > 1 = jumpier than modelled
     rgb: NDArray = _empty(3)
     hsl: NDArray = _empty(3)
     extent: NDArray = _empty(3)
