@@ -181,6 +181,14 @@ def test_crest_has_no_obstacles_in_terrain_mode() -> None:
     assert mapper().process(cloud(up, (down_pts, down[1])), ego()).clusters == []
 
 
+def test_cross_slope_has_no_obstacles_in_terrain_mode() -> None:
+    """A road falling 5 cm per metre to the right (camber and camera roll, as on KITTI raw 0009)."""
+    flat = road()
+    tilted = (flat[0] + np.outer(flat[0][:, 1] * 0.05, [0.0, 0.0, 1.0]).astype(np.float32), flat[1])
+    assert len(mapper(ground="flat").process(cloud(tilted), ego()).clusters) > 0
+    assert mapper().process(cloud(tilted), ego()).clusters == []
+
+
 def test_overhanging_box_is_one_cluster_spanning_its_height() -> None:
     out = mapper().process(cloud(road(), box((9, -1.5, 1.5), (11, 1.5, 2.5), GREEN)), ego())
     assert len(out.clusters) == 1

@@ -35,11 +35,11 @@ class FlatGround:
 
 
 @numba.njit(cache=True)
-def _height_histogram(points: npt.NDArray[np.float32], cross: float, x0: float, dx: float, nx: int,
+def _height_histogram(points: npt.NDArray[np.float32], stride: int, cross: float, x0: float, dx: float, nx: int,
                       z0: float, dz: float, nz: int) -> npt.NDArray[np.int64]:
-    """Counts of points per (slice of x, bin of z - cross * y)."""
+    """Counts of every ``stride``-th point per (slice of x, bin of z - cross * y)."""
     hist = np.zeros((nx, nz), dtype=np.int64)
-    for p in range(points.shape[0]):
+    for p in range(0, points.shape[0], stride):
         i = int(np.floor((points[p, 0] - x0) / dx))
         k = int(np.floor((points[p, 2] - cross * points[p, 1] - z0) / dz))
         if 0 <= i < nx and 0 <= k < nz:
@@ -60,7 +60,8 @@ class TerrainProfile:
     band_m: float = 0.25  # search band around the last road height found
     max_grade: float = 0.15  # steepest change of height per metre accepted
     max_cross: float = 0.12  # steepest cross slope accepted
-    min_points: int = 20  # fewer road points in a slice: interpolated
+    min_points: int = 10  # fewer (histogrammed) road points in a slice: interpolated
+    stride: int = 2  # every n-th point makes the histograms (far slices keep ~200 road points)
     sample: int = 8  # every n-th point fits the cross slope
 
     def __post_init__(self) -> None:
@@ -86,7 +87,8 @@ class TerrainProfile:
         return pts[:, 2] - road - self.cross * pts[:, 1]
 
     def _profile(self, pts: npt.NDArray[np.float32]) -> None:
-        hist = _height_histogram(pts, self.cross, self.x_min, self.slice_m, self.nx, self.z_min, self.bin_m, self.nz)
+        hist = _height_histogram(pts, self.stride, self.cross, self.x_min, self.slice_m, self.nx,
+                                 self.z_min, self.bin_m, self.nz)
         smooth = hist.astype(np.float64)
         smooth[:, 1:-1] = 0.25 * hist[:, :-2] + 0.5 * hist[:, 1:-1] + 0.25 * hist[:, 2:]
         centres = self.z_min + (np.arange(self.nz) + 0.5) * self.bin_m

@@ -28,6 +28,7 @@ BITS = 21
 OFFSET = 1 << (BITS - 1)  # coordinates in [-OFFSET, OFFSET) fit
 FIELD = (1 << BITS) - 1
 EMPTY = -1
+INV255 = 1.0 / 255.0
 GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 
 # Columns of the per-voxel sums.
@@ -116,7 +117,7 @@ def _insert(points: npt.NDArray[np.float32], colors: npt.NDArray[np.uint8], rot:
             if s == n:
                 n += 1
             last_key, last_slot = key, s
-        r, g, b = colors[p, 0] / 255.0, colors[p, 1] / 255.0, colors[p, 2] / 255.0
+        r, g, b = colors[p, 0] * INV255, colors[p, 1] * INV255, colors[p, 2] * INV255
         hue, sat, light = rgb_to_hsl(r, g, b)
         st = stats[s]
         st[0] += 1.0
