@@ -55,6 +55,7 @@ WORLD, VEHICLE, CAMERA = "world", "vehicle", "camera"
 TOPICS: dict[str, type] = {
     "/camera/left": CompressedImage,
     "/camera/calibration": CameraCalibration,
+    "/disparity": CompressedImage,
     "/tf": FrameTransform,
     "/points": PointCloud,
     "/voxels": SceneUpdate,
@@ -147,6 +148,22 @@ def image(frame: sv.StereoFrame) -> list[Converted]:
         left = CompressedImage(timestamp=stamp, frame_id=CAMERA, data=jpeg.tobytes(), format="jpeg")
         out.append(("/camera/left", left))
     return out
+
+
+def disparity(msg: sv.Disparity) -> list[Converted]:
+    """Disparity as a colour-mapped JPEG (near warm, far cool, invalid black) on the camera frame."""
+    d = np.asarray(msg.disparity, dtype=np.float32)
+    valid = np.isfinite(d) & (d > 0)
+    top = float(np.percentile(d[valid], 99)) if valid.any() else 1.0
+    scaled = np.zeros(d.shape, dtype=np.uint8)
+    scaled[valid] = np.clip(d[valid] / max(top, 1e-6) * 255.0, 0, 255).astype(np.uint8)
+    coloured = cv2.applyColorMap(scaled, cv2.COLORMAP_TURBO)
+    coloured[~valid] = 0
+    ok, jpeg = cv2.imencode(".jpg", coloured, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    if not ok:
+        return []
+    image = CompressedImage(timestamp=timestamp(msg.stamp_ns), frame_id=CAMERA, data=jpeg.tobytes(), format="jpeg")
+    return [("/disparity", image)]
 
 
 _POINT_FIELDS = [
@@ -272,6 +289,8 @@ class Converter:
     """
 
     def __init__(self, max_trajectory: int = 5000) -> None:
+        # The line is sent whole with every frame (a viewer may join or seek at any time), so
+        # its length is capped: 5000 poses is over eight minutes at 10 Hz.
         self.max_trajectory = max_trajectory
         self._positions: list[NDArray] = []
         self._last_frame = -1
@@ -283,6 +302,8 @@ class Converter:
             return image(msg)
         if isinstance(msg, sv.PointCloud):
             return point_cloud(msg)
+        if isinstance(msg, sv.Disparity):
+            return disparity(msg)
         if isinstance(msg, sv.Clusters):
             return clusters(msg)
         if isinstance(msg, sv.Obstacles):

@@ -20,10 +20,10 @@ from common.progress import progress
 from common.recording import open_recording
 
 FORMATS: tuple[str, ...] = ("foxglove",)
-#: the topics the conversion draws; the rest (disparity images, health) is not decoded at all.
+#: the topics the conversion draws; the rest (health, ground-truth disparity) is not decoded at all.
 CONVERTED: tuple[str, ...] = (
-    "camera/stereo", "stereo_depth/points", "odometry/ego", "voxel_mapper/clusters", "tracker/obstacles",
-    "groundtruth/objects",
+    "camera/stereo", "stereo_depth/points", "stereo_depth/disparity", "odometry/ego",
+    "voxel_mapper/clusters", "tracker/obstacles", "groundtruth/objects",
 )
 
 

@@ -25,6 +25,7 @@ ALWAYS: tuple[str, ...] = ("odometry/ego", "tracker/obstacles")
 ON_DEMAND: dict[str, tuple[str, ...]] = {
     "camera/stereo": ("/camera/left", "/camera/calibration"),
     "stereo_depth/points": ("/points",),
+    "stereo_depth/disparity": ("/disparity",),
     "voxel_mapper/clusters": ("/voxels", "/clusters"),
     "groundtruth/objects": ("/groundtruth/objects",),
 }

@@ -15,6 +15,7 @@ import subprocess
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from conftest import REPO, Processes, free_port, stereovox_cmd, wait_for
@@ -54,6 +55,10 @@ def test_every_exported_channel_has_a_foxglove_schema_and_decodes(exported: Path
     assert all(len(decoded[t]) == FRAMES for t in TOPICS if t != "/tf")
     image = decoded["/camera/left"][0]
     assert image["format"] == ["jpeg"] and image["data"][0][:2] == b"\xff\xd8"
+    disparity = cv2.imdecode(np.frombuffer(decoded["/disparity"][0]["data"][0], np.uint8), cv2.IMREAD_COLOR)
+    assert disparity.shape[:2] == (CALIB.height, CALIB.width)
+    assert disparity[:8].max() < 30  # invalid rows black
+    assert np.abs(disparity[100, 20].astype(int) - disparity[100, -20].astype(int)).sum() > 100  # near vs far
     cloud = decoded["/points"][0]
     assert cloud["point_stride"] == [16] and len(cloud["data"][0]) == 50 * 16
 

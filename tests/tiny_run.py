@@ -62,6 +62,8 @@ def write_run(path: Path, frames: int = 3) -> Path:
     """A run recording as ``process`` writes one: camera, points, ego, clusters, tracks, truth."""
     image = np.full((HEIGHT, WIDTH, 3), GREY, dtype=np.uint8)
     rng = np.random.default_rng(0)
+    disparity = np.tile(np.linspace(1.0, 40.0, WIDTH, dtype=np.float32), (HEIGHT, 1))
+    disparity[:10] = np.nan  # invalid rows, as the matcher leaves them
     with RecordingWriter(path) as writer:
         writer.describe(None, {"source": "synthetic", "frames": frames, "frame_rate_hz": 10.0})
         for i in range(frames):
@@ -75,6 +77,7 @@ def write_run(path: Path, frames: int = 3) -> Path:
                 ("camera/stereo", sv.StereoFrame(frame_id=i, stamp_ns=stamp, left=image, right=image, calib=CALIB,
                                                  image_format="png")),
                 ("stereo_depth/points", sv.PointCloud(frame_id=i, stamp_ns=stamp, points=points, colors=colours)),
+                ("stereo_depth/disparity", sv.Disparity(frame_id=i, stamp_ns=stamp, disparity=disparity, calib=CALIB)),
                 ("odometry/ego", sv.EgoMotion(frame_id=i, stamp_ns=stamp, pose=pose, valid=True)),
                 ("voxel_mapper/clusters", sv.Clusters(frame_id=i, stamp_ns=stamp, voxel_edge=VOXEL_EDGE, ego_pose=pose,
                                                       clusters=[cluster(MOVING), cluster(STATIONARY)])),
