@@ -95,6 +95,7 @@ class OdometryConfig:
     subpixel_window: int = 11  # Lucas-Kanade refinement window (pixels)
     subpixel_stereo: bool = True  # LK-refine disparities too (off: integer disparities, 0.6 % less scale on KITTI)
     disparity_offset_px: float = 0.0  # added to every disparity: a rig's bias measured against lidar
+    usable_width: float = 1.0  # share of the image width, centred on cx, whose matches estimate motion
     ransac_iterations: int = 200
     ransac_threshold_px: float = 1.5
     symmetric: bool = False  # also refine on backward reprojection (measured: no gain on KITTI)

@@ -164,6 +164,9 @@ class StereoOdometry:
         lo, hi = self.cfg.min_disparity, self.cfg.max_disparity
         d_prev, d_cur = prev_obs[:, 0] - prev_obs[:, 2], cur_obs[:, 0] - cur_obs[:, 2]
         usable = (d_prev >= lo) & (d_prev <= hi) & (d_cur >= lo) & (d_cur <= hi)
+        # a lens whose rectification is least exact at the sides: keep only the central columns
+        reach = self.cfg.usable_width * 0.5 * previous.left_gray.shape[1]
+        usable &= (np.abs(prev_obs[:, 0] - rig.cx) <= reach) & (np.abs(cur_obs[:, 0] - rig.cx) <= reach)
         prev_obs, cur_obs = prev_obs[usable], cur_obs[usable]
         if len(prev_obs) < self.cfg.min_inliers:
             return None
