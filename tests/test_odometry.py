@@ -14,7 +14,7 @@ from conftest import shared_path
 from common.config import Config
 from common.errors import CalibrationError, InputError
 from common.geometry import camera_to_vehicle, invert, make_pose, rot_y, rotation_angle
-from common.messages import Calibration, StereoFrame
+from common.messages import Calibration, EgoMotion, StereoFrame
 from services.odometry import StereoOdometry
 from services.odometry.circular_matching import close_circle, match_stereo, match_temporal
 from services.odometry.features import FeatureDetector, to_gray
@@ -184,6 +184,25 @@ def test_long_loss_reanchors_the_world() -> None:
     assert back.world_epoch == 5 and back.valid and np.allclose(back.pose, np.eye(4))
     after = odo.process(frame(6, np.linalg.matrix_power(step, 6)))
     assert after.valid and errors(after.pose, vehicle_pose(step))[0] < 0.02
+
+
+@pytest.mark.timeout(60)
+def test_rig_corrections_act_as_documented() -> None:
+    step = cam_motion(0.0, (0.0, 0.0, 1.0))
+    frames = [frame(i, np.linalg.matrix_power(step, i)) for i in range(2)]
+
+    def run(**values: float) -> EgoMotion:
+        cfg = Config()
+        for key, value in values.items():
+            setattr(cfg.odometry, key, value)
+        odo = StereoOdometry.from_config(cfg)
+        return [odo.process(f) for f in frames][-1]
+
+    plain, central, offset = run(), run(usable_width=0.4), run(disparity_offset_px=0.5)
+    forward = [m.delta[0, 3] for m in (plain, central, offset)]
+    assert abs(forward[0] - 1.0) < 0.01 and abs(forward[1] - 1.0) < 0.02
+    assert 0 < central.inliers < plain.inliers  # side columns left out
+    assert forward[2] < 0.97  # a larger disparity means nearer points, so a shorter step
 
 
 def test_bad_inputs_raise_clear_errors_and_a_new_image_size_starts_a_new_world() -> None:
