@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from common.config import Config
+from common.errors import ConfigError, InputError
 from common.geometry import make_pose, rot_z
 from common.messages import Clusters, EgoMotion, PointCloud, decode, encode
 from services.voxel_mapper import VoxelMapper
@@ -210,3 +211,21 @@ def test_invalid_egomotion_restarts_the_map_from_that_frame() -> None:
     out = vm.process(cloud(road(), frame_id=1), ego(frame_id=1, valid=False))
     assert out.clusters == []  # the box kept by the decay is not fused under an unreliable pose
     assert out.voxel_count == mapper().process(cloud(road()), ego()).voxel_count
+
+
+def test_empty_and_malformed_clouds() -> None:
+    vm = mapper()
+    empty = PointCloud(frame_id=3, stamp_ns=0, points=np.zeros((0, 3), np.float32), colors=np.zeros((0, 3), np.uint8))
+    out = vm.process(empty, ego(frame_id=3))
+    assert out.clusters == [] and out.voxel_count == 0 and out.frame_id == 3
+    bad = np.full((6, 3), np.nan, np.float32)
+    bad[:3] = 1e9  # beyond the 2^20-voxel world: skipped, not wrapped around
+    assert vm.process(PointCloud(frame_id=4, stamp_ns=0, points=bad, colors=np.zeros((6, 3), np.uint8)),
+                      ego(frame_id=4)).voxel_count == 0
+    with pytest.raises(InputError, match="must both be Nx3"):
+        vm.process(PointCloud(frame_id=5, stamp_ns=0, points=np.zeros((4, 3), np.float32),
+                              colors=np.zeros((3, 3), np.uint8)), ego(frame_id=5))
+    cfg = Config()
+    cfg.voxel.ground = "hilly"
+    with pytest.raises(ConfigError, match="flat' or 'terrain"):
+        VoxelMapper.from_config(cfg)
