@@ -219,12 +219,41 @@ def _check_service(svc: ServiceSpec, spec: LaunchSpec) -> list[str]:
     return errors
 
 
+def _check_code(svc: ServiceSpec) -> list[str]:
+    """A ``stereovox run`` stage reads and writes what its code does, not only what the spec says."""
+    import importlib
+
+    from common.config import Config
+    from services.runner import SERVICES
+
+    name = svc.command[1] if len(svc.command) > 1 else ""
+    if name not in SERVICES:
+        return [f"service {svc.name}: stereovox run has no stage {name!r} (one of {sorted(SERVICES)})"]
+    stage = importlib.import_module(SERVICES[name]).stage(Config())
+    errors = [f"service {svc.name}: the code reads {key}, the spec does not list it" for key in stage.inputs
+              if key not in svc.inputs]
+    errors += [f"service {svc.name}: input {key} is not read by stage {name}" for key in svc.inputs
+               if key not in stage.inputs]
+    for key, kind in stage.inputs.items():
+        want = svc.inputs.get(key, {}).get("schema")
+        if want and want != f"stereovox.{kind.SCHEMA}/{kind.VERSION}":
+            errors.append(f"service {svc.name}: input {key} says {want}, stage {name} reads "
+                          f"stereovox.{kind.SCHEMA}/{kind.VERSION}")
+    errors += [f"service {svc.name}: output {key} is not written by stage {name}" for key in svc.outputs
+               if key not in stage.outputs]
+    errors += [f"service {svc.name}: the code writes {key}, the spec does not list it" for key in stage.outputs
+               if key not in svc.outputs]
+    return errors
+
+
 def check(spec: LaunchSpec) -> list[str]:
     """Every problem that would stop the graph from working; empty when it is consistent."""
     errors = _check_hosts(spec)
     publishers: dict[str, list[tuple[str, str]]] = {}
     for svc in spec.services.values():
         errors += _check_service(svc, spec)
+        if svc.command[:1] == ["run"]:
+            errors += _check_code(svc)
         for key, schema in svc.outputs.items():
             publishers.setdefault(key, []).append((svc.name, schema))
     for key, pubs in publishers.items():

@@ -105,6 +105,21 @@ def test_check_rejects_inconsistent_hosts_and_endpoints(tmp_path: Path) -> None:
     assert wrong.returncode == 2 and "router: listens on loopback 127.0.0.1" in wrong.stderr
 
 
+def test_check_compares_the_spec_with_what_the_stages_read(tmp_path: Path) -> None:
+    """A graph consistent on paper, but the voxel mapper's code reads stereo_depth/points, not a renamed key."""
+    raw = yaml.safe_load((DEPLOY / "local.yaml").read_text())
+    raw["zenoh"] = {}
+    stereo, mapper = raw["services"]["stereo_depth"], raw["services"]["voxel_mapper"]
+    stereo["outputs"]["stereo_depth/cloud"] = stereo["outputs"].pop("stereo_depth/points")
+    mapper["inputs"]["stereo_depth/cloud"] = mapper["inputs"].pop("stereo_depth/points")
+    spec = tmp_path / "renamed.yaml"
+    spec.write_text(yaml.safe_dump(raw))
+    proc = _check(spec, "port=1", "out=o", "recording=r", "max_frames=1")
+    assert proc.returncode == 2
+    assert "service voxel_mapper: the code reads stereo_depth/points, the spec does not list it" in proc.stderr
+    assert "service stereo_depth: output stereo_depth/cloud is not written by stage stereo_depth" in proc.stderr
+
+
 # ---------------------------------------------------------------- two hosts
 
 
