@@ -35,6 +35,7 @@ class VehicleView:
         self.health: dict[str, sv.Health] = {}
         self.rate_hz: dict[str, float] = {}
         self.obstacles: sv.Obstacles | None = None
+        self.heard: dict[str, float] = {}  # service (or "tracker/obstacles") -> monotonic time last heard
         self.obstacle_messages = 0
         self._lock = threading.Lock()
 
@@ -51,10 +52,12 @@ class VehicleView:
             elif report.uptime_s > 0:
                 self.rate_hz[report.service] = report.frames_out / report.uptime_s
             self.health[report.service] = report
+            self.heard[report.service] = time.monotonic()
 
     def on_obstacles(self, msg: sv.Obstacles) -> None:
         with self._lock:
             self.obstacles = msg
+            self.heard["tracker/obstacles"] = time.monotonic()
             self.obstacle_messages += 1
 
     def missing(self) -> list[str]:
@@ -71,29 +74,36 @@ class VehicleView:
         with self._lock:
             return self.obstacles is not None and bool(self.obstacles.obstacles)
 
+    def _age(self, what: str) -> str:
+        """Seconds since ``what`` was last heard: a stalled service shows a growing age before it is gone."""
+        return f"{time.monotonic() - self.heard[what]:.1f}" if what in self.heard else "-"
+
     def services_table(self) -> Table:
         table = Table(title="services", title_justify="left", expand=False)
         for name, justify in (("service", "left"), ("status", "left"), ("rate Hz", "right"), ("p50 ms", "right"),
                               ("p95 ms", "right"), ("in", "right"), ("out", "right"), ("dropped", "right"),
-                              ("decode err", "right"), ("errors", "right")):
+                              ("decode err", "right"), ("errors", "right"), ("report age s", "right")):
             table.add_column(name, justify=justify)  # type: ignore[arg-type]
         with self._lock:
             for service in sorted(set(self.alive) | set(self.health)):
                 status = _status(self.alive.get(service))
                 h = self.health.get(service)
                 if h is None:
-                    table.add_row(service, status, *["-"] * 8)
+                    table.add_row(service, status, *["-"] * 9)
                     continue
                 table.add_row(
                     service, status, f"{self.rate_hz.get(service, 0.0):.2f}", f"{h.p50_ms:.1f}", f"{h.p95_ms:.1f}",
                     str(h.frames_in), str(h.frames_out), str(h.dropped), str(h.decode_errors), str(h.errors),
+                    self._age(service),
                 )
         return table
 
     def obstacles_table(self) -> Table:
         with self._lock:
             msg = self.obstacles
-        title = "obstacles (none received yet)" if msg is None else f"obstacles of frame {msg.frame_id}"
+        title = "obstacles (none received yet)" if msg is None else (
+            f"obstacles of frame {msg.frame_id} (received {self._age('tracker/obstacles')} s ago)"
+        )
         table = Table(title=title, title_justify="left")
         for name in ("id", "state", "motion", "speed m/s", "distance m", "x m", "y m", "age"):
             table.add_column(name, justify="left" if name in ("state", "motion") else "right")
