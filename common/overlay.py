@@ -48,6 +48,13 @@ def track_colour(obstacle: Obstacle) -> RGB:
     return MOVING if obstacle.moving else STATIONARY
 
 
+def cluster_colour(cluster_id: int) -> RGB:
+    """A colour of its own for each cluster id: hues a golden angle apart stay distinct."""
+    hue = int((cluster_id * 0.618034 % 1.0) * 180)
+    r, g, b = cv2.cvtColor(np.array([[[hue, 150, 220]]], dtype=np.uint8), cv2.COLOR_HSV2RGB)[0, 0]
+    return int(r), int(g), int(b)
+
+
 def box_corners(lo: NDArray, hi: NDArray) -> NDArray:
     """The 8 corners of an axis-aligned box; corner i takes hi on axis a where bit a of i is set."""
     lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
@@ -122,18 +129,27 @@ class BirdsEye:
             cv2.putText(panel, f"{x:.0f} m", (4, int(v) - 3), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (120, 120, 120), 1)
         ego = self.pixels(np.array([[1.5, 0.0, 0.0], [-1.0, 0.8, 0.0], [-1.0, -0.8, 0.0]]))
         cv2.fillPoly(panel, [ego], TRAJECTORY)
+        legend = (("moving", MOVING), ("stationary", STATIONARY), ("new", ACCEPTANCE), ("lost", GHOST),
+                  ("truth", TRUTH), ("ego path", TRAJECTORY))
+        x = 4
+        for name, colour in legend:
+            cv2.putText(panel, name, (x, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.35, colour, 1, cv2.LINE_AA)
+            x += cv2.getTextSize(name, cv2.FONT_HERSHEY_SIMPLEX, 0.35, 1)[0][0] + 8
         return panel
 
     def draw_voxels(self, panel: NDArray, clusters: Sequence[Cluster], edge: float, world_vehicle: NDArray) -> None:
-        """Every cluster's voxels as small squares in the cluster's mean colour."""
+        """Every cluster's voxels as small squares, one colour per cluster (as the paper's Fig. 6)."""
         side = max(1, round(edge * self.scale))
+        h, w = panel.shape[:2]
         for cl in clusters:
             centres = (np.asarray(cl.voxels, dtype=np.float64) + 0.5) * edge
-            px = self.pixels(transform(world_vehicle, centres))
-            colour = tuple(int(c) for c in np.clip(np.asarray(cl.color_mean_rgb) * 255, 40, 255))
-            for u, v in px:
-                cv2.rectangle(panel, (int(u), int(v)), (int(u) + side - 1, int(v) + side - 1), colour, -1)
-            self._footprint(panel, cl.bbox_min, cl.bbox_max, world_vehicle, (110, 110, 110), 1)
+            px = self.pixels(transform(world_vehicle, centres)) - side // 2
+            colour = np.array(cluster_colour(cl.id), dtype=np.uint8)
+            for du in range(side):
+                for dv in range(side):
+                    u, v = px[:, 0] + du, px[:, 1] + dv
+                    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+                    panel[v[inside], u[inside]] = colour
 
     def _footprint(self, panel: NDArray, lo: NDArray, hi: NDArray, world_vehicle: NDArray, colour: RGB,
                    thickness: int) -> None:
@@ -141,10 +157,12 @@ class BirdsEye:
         cv2.polylines(panel, [self.pixels(transform(world_vehicle, corners))], True, colour, thickness, cv2.LINE_AA)
 
     def draw_tracks(self, panel: NDArray, obstacles: Sequence[Obstacle], world_vehicle: NDArray) -> None:
-        """Each track's footprint in its state colour and its velocity as an arrow."""
+        """Each track's footprint in its state colour; confirmed tracks also get their velocity arrow."""
         for ob in obstacles:
             colour = track_colour(ob)
             self._footprint(panel, ob.bbox_min, ob.bbox_max, world_vehicle, colour, 2)
+            if ob.state != "tracked":
+                continue  # new and lost tracks' velocities are guesses: arrows would only clutter
             centre = np.asarray(ob.centroid, dtype=np.float64)
             tip = centre + np.asarray(ob.velocity) * ARROW_SECONDS
             ends = self.pixels(transform(world_vehicle, np.stack([centre, tip])))
