@@ -2,12 +2,20 @@
 
 ``VoxelMapper.process(cloud, ego)`` reads as the paper: follow the world epoch, update the map with
 this frame's points brought into the world (Sect. IV-A), find the road, select the voxels above it
-inside the volume of interest, flood-fill them by colour (Alg. IV-B.1, Eq. 1), aggregate small
-clusters (Alg. IV-B.2), remove noise (Alg. IV-B.3) and describe what is left.
+inside the volume of interest, flood-fill them by colour (Alg. IV-B.1, Eq. 1), join the parts of
+one object (an addition, see ``linkage``), aggregate small clusters (Alg. IV-B.2), remove noise
+(Alg. IV-B.3) and describe what is left.
 
 World-state policy: a new ``world_epoch`` resets the map (its world frame is gone). An invalid
 egomotion also restarts the map from this frame alone: its pose is odometry's prediction, good
 enough to place this frame's clusters but not to fuse them with voxels seen under another pose.
+A voxel without points this frame is removed, as in the paper: keeping unseen voxels for one or
+two frames (``keep_frames``) was measured on the synthetic urban street and left trails behind
+moving objects (merged clusters 8 % -> 16-21 %, missed objects 19 % -> 25-32 %).
+
+The sequential kernels (map insert, flood fill, links) are numba-compiled with ``cache=True``:
+a flood fill with a running mean cannot be vectorised, pure Python took ~240 ms for 6,700 voxels,
+and the compiled map update is one hash insert per point (~30 ns) where numpy would sort the keys.
 """
 
 from __future__ import annotations
