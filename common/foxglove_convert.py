@@ -294,6 +294,7 @@ class Converter:
         self.max_trajectory = max_trajectory
         self._positions: list[NDArray] = []
         self._last_frame = -1
+        self._epoch = 0
         self._odometry_seen = False
 
     def convert(self, topic: str, msg: sv.Message) -> list[Converted]:
@@ -308,16 +309,21 @@ class Converter:
             return clusters(msg)
         if isinstance(msg, sv.Obstacles):
             out = obstacles(msg)
-            return out if self._odometry_seen else out + self._extend(msg.ego_pose, msg.frame_id, msg.stamp_ns)
+            if self._odometry_seen:
+                return out
+            return out + self._extend(msg.ego_pose, msg.frame_id, msg.stamp_ns, msg.world_epoch)
         if isinstance(msg, sv.EgoMotion):
             self._odometry_seen = True
             moved = transform(WORLD, VEHICLE, msg.pose, msg.stamp_ns)
-            return [("/tf", moved), *self._extend(msg.pose, msg.frame_id, msg.stamp_ns)]
+            return [("/tf", moved), *self._extend(msg.pose, msg.frame_id, msg.stamp_ns, msg.world_epoch)]
         if isinstance(msg, sv.GroundTruthObjects):
             return ground_truth(msg)
         return []
 
-    def _extend(self, ego_pose: NDArray, frame_id: int, stamp_ns: int) -> list[Converted]:
+    def _extend(self, ego_pose: NDArray, frame_id: int, stamp_ns: int, epoch: int) -> list[Converted]:
+        if epoch != self._epoch:  # the world was re-anchored: old positions are in another frame
+            self._epoch = epoch
+            self._positions.clear()
         if frame_id != self._last_frame:
             self._last_frame = frame_id
             self._positions.append(np.asarray(ego_pose)[:3, 3].copy())

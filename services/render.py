@@ -127,7 +127,7 @@ def render_recording(run: Path, out: Path, frames: tuple[int, int] = (0, sys.max
     first, stop = frames
     pending: dict[int, FrameParts] = {}
     positions: list[np.ndarray] = []
-    last_pose_frame = -1
+    last_pose_frame, epoch = -1, 0
     keys = {sv.key_for(t): t for t in NEEDED}
     total = info.get("frames") if isinstance(info.get("frames"), int) else None
     records = progress(
@@ -141,6 +141,9 @@ def render_recording(run: Path, out: Path, frames: tuple[int, int] = (0, sys.max
                 continue
             msg = sv.decode(rec.data)
             if isinstance(msg, sv.Obstacles):
+                if msg.world_epoch != epoch:  # the world was re-anchored: the old path is in another frame
+                    epoch = msg.world_epoch
+                    positions.clear()
                 if msg.frame_id != last_pose_frame:  # the path the vehicle took, every frame counted
                     last_pose_frame = msg.frame_id
                     positions.append(np.asarray(msg.ego_pose)[:3, 3].copy())

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 import pytest
 from conftest import REPO, Processes, free_port, stereovox_cmd, wait_for
+from foxglove.messages import SceneUpdate
 from foxglove_wire import WebSocket, decode, descriptors
 from mcap.reader import make_reader
 from tiny_run import CALIB, MOVING, STATIONARY, ego_pose, write_run
@@ -26,7 +27,7 @@ from tiny_run import CALIB, MOVING, STATIONARY, ego_pose, write_run
 from common import messages as sv
 from common.bus import Publisher, open_session
 from common.config import BusConfig
-from common.foxglove_convert import TOPICS
+from common.foxglove_convert import TOPICS, Converter
 
 FRAMES = 3
 
@@ -171,3 +172,18 @@ def _publish_until_received(ws: WebSocket, endpoint: str, topic: str, msg: sv.Me
             except TimeoutError:
                 continue
         pytest.fail(f"the live server never forwarded {topic}")
+
+
+def test_trajectory_grows_per_frame_and_restarts_when_the_world_is_re_anchored() -> None:
+    schema = SceneUpdate.get_schema()
+    table = descriptors(schema.data)
+    converter = Converter()
+
+    def line_points(frame: int, epoch: int) -> int:
+        ego = sv.EgoMotion(frame_id=frame, stamp_ns=frame, pose=ego_pose(frame), world_epoch=epoch)
+        (update,) = [m for topic, m in converter.convert("odometry/ego", ego) if topic == "/trajectory"]
+        return len(decode(table, schema.name, update.encode())["entities"][0]["lines"][0]["points"])
+
+    assert [line_points(f, 0) for f in range(3)] == [1, 2, 3]
+    assert line_points(2, 0) == 3  # the same frame twice adds nothing
+    assert line_points(3, 1) == 1
