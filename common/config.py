@@ -117,7 +117,7 @@ class VoxelConfig:
     min_cluster_voxels: int = 12  # smaller clusters are merged into a neighbour or dropped (measured: 4..12)
     min_density: float = 0.02  # voxels / bounding-box volume (in voxels)
     min_points_per_voxel: int = 8  # points a voxel gathered before it is clustered (measured: 2..8)
-    keep_frames: int = 0  # 0 = the paper: a voxel without points this frame is removed (1, 2 measured worse)
+    keep_frames: int = 0  # 0 = the paper: a voxel without points this frame is removed (1: more phantoms)
     ground: str = "terrain"  # flat (z > ground_clearance) | terrain (height above local road)
     ground_clearance: float = 0.2
     terrain_slice: float = 1.0  # m of x per slice of the terrain height profile
