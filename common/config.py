@@ -83,6 +83,8 @@ class OdometryConfig:
 
     max_features: int = 2000
     fast_threshold: int = 20
+    min_corners: int = 1000  # below this many corners the FAST threshold halves (dark, low-contrast frames)
+    min_fast_threshold: int = 4
     feature_cell_px: int = 16  # corners are capped per grid cell so they cover the image
     features_per_cell: int = 4
     match_radius_px: float = 200.0  # temporal search window without a motion prior

@@ -13,6 +13,8 @@ import sys
 import threading
 from typing import Any
 
+import zenoh
+
 from common import messages as sv
 from common.bus import FifoSubscriber, LatestSubscriber, subscribe
 from common.foxglove_convert import Channels, Converter
@@ -34,7 +36,7 @@ ON_DEMAND: dict[str, tuple[str, ...]] = {
 class LiveView:
     """Newest-only subscribers of the drawn topics, converted and logged on one thread."""
 
-    def __init__(self, session: Any, vehicle: str, channels: Channels) -> None:
+    def __init__(self, session: zenoh.Session, vehicle: str, channels: Channels) -> None:
         self.channels = channels
         self.converter = Converter()
         self.wakeup = threading.Event()
@@ -60,7 +62,7 @@ class LiveView:
             sub.close()
 
 
-def serve(session: Any, vehicle: str, host: str, port: int, stop: threading.Event) -> int:
+def serve(session: zenoh.Session, vehicle: str, host: str, port: int, stop: threading.Event) -> int:
     """Serve until ``stop`` is set; prints the WebSocket address (port 0 picks a free one)."""
     import foxglove
 

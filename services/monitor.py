@@ -14,9 +14,10 @@ import argparse
 import sys
 import threading
 import time
-from typing import Any
+from collections.abc import Callable
 
 import numpy as np
+import zenoh
 from rich.console import Console, Group
 from rich.table import Table
 from rich.text import Text
@@ -131,9 +132,9 @@ def _status(alive: bool | None) -> Text:
     return Text("alive", "green") if alive else Text("gone", "red")
 
 
-def _pump(subs: list[Any], view: VehicleView, stop: threading.Event, wakeup: threading.Event) -> None:
+def _pump(health: FifoSubscriber[sv.Health], obstacles: LatestSubscriber[sv.Obstacles], view: VehicleView,
+          stop: threading.Event, wakeup: threading.Event) -> None:
     """Hand every delivered message to the view until stopped (runs on its own thread)."""
-    health, obstacles = subs
     while not stop.is_set():
         wakeup.wait(0.2)
         wakeup.clear()
@@ -143,7 +144,8 @@ def _pump(subs: list[Any], view: VehicleView, stop: threading.Event, wakeup: thr
             view.on_obstacles(latest.msg)
 
 
-def watch(session: Any, vehicle: str, view: VehicleView, stop: threading.Event, show: Any) -> None:
+def watch(session: zenoh.Session, vehicle: str, view: VehicleView, stop: threading.Event,
+          show: Callable[[], object]) -> None:
     """Subscribe read-only, pump messages into ``view`` and call ``show()`` until it returns True."""
     wakeup = threading.Event()
     health: FifoSubscriber[sv.Health] = subscribe(  # type: ignore[assignment]
@@ -153,7 +155,7 @@ def watch(session: Any, vehicle: str, view: VehicleView, stop: threading.Event, 
         session, sv.key_for("tracker/obstacles", vehicle), sv.Obstacles, policy="newest", wakeup=wakeup
     )
     tokens = watch_alive(session, vehicle, view.on_alive)
-    pump = threading.Thread(target=_pump, args=([health, obstacles], view, stop, wakeup), daemon=True)
+    pump = threading.Thread(target=_pump, args=(health, obstacles, view, stop, wakeup), daemon=True)
     pump.start()
     try:
         while not stop.is_set():
@@ -202,7 +204,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _once(session: Any, vehicle: str, view: VehicleView, stop: threading.Event, timeout_s: float) -> int:
+def _once(session: zenoh.Session, vehicle: str, view: VehicleView, stop: threading.Event, timeout_s: float) -> int:
     """Wait for a full snapshot (one with an obstacle if one comes in time), print it, exit."""
     deadline = time.monotonic() + timeout_s
     watch(session, vehicle, view, stop,

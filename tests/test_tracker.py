@@ -112,11 +112,15 @@ def test_distance_terms_are_weighted_as_configured() -> None:
     w = Weights(position=0.0, color=0.0, size=0.0, density=0.0, gate=3.0, position_gate=3.0)
     d = distance_matrix(w, np.full((1, 2), 1.0), *args_t, *args_c)
     assert np.isinf(d[0, 0]) and d[0, 1] == 0.0
-    # hue is circular: 0.95 and 0.05 are 0.1 apart
+    # hue is circular (0.95 and 0.05 are 0.1 apart) and counts only as far as both are saturated
     w = Weights(position=0.0, color=1.0, size=0.0, density=0.0, gate=3.0, position_gate=3.0)
-    hsl_t, hsl_c = np.array([[0.95, 0.5, 0.5]]), np.array([[0.05, 0.5, 0.5]])
-    d = distance_matrix(w, np.ones((1, 1)), args_t[0], grey, hsl_t, *args_t[3:], args_t[0], grey, hsl_c, *args_t[3:])
-    assert np.allclose(d, [[0.1]])
+    hsl_t = np.array([[0.95, 1.0, 0.5], [0.95, 0.0, 0.5]])
+    hsl_c = np.array([[0.05, 1.0, 0.5], [0.45, 0.0, 0.5]])
+    d = distance_matrix(w, np.ones((2, 2)), *(np.repeat(a, 2, axis=0) for a in args_t[:2]), hsl_t,
+                        *(np.repeat(a, 2, axis=0) for a in args_t[3:]),
+                        *(np.repeat(a, 2, axis=0) for a in args_t[:2]), hsl_c,
+                        *(np.repeat(a, 2, axis=0) for a in args_t[3:]))  # fmt: skip
+    assert np.isclose(d[0, 0], 0.1) and np.isclose(d[1, 1], 0.0)  # two greys: their hues are noise
 
 
 def test_position_variance_grows_with_track_uncertainty_and_range() -> None:

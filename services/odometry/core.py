@@ -83,7 +83,12 @@ class StereoOdometry:
     def __init__(self, config: OdometryConfig, initial_epoch: int = 0) -> None:
         self.cfg = config
         self.detector = FeatureDetector(
-            config.fast_threshold, config.feature_cell_px, config.features_per_cell, config.max_features
+            config.fast_threshold,
+            config.feature_cell_px,
+            config.features_per_cell,
+            config.max_features,
+            config.min_corners,
+            config.min_fast_threshold,
         )
         self.rng = np.random.default_rng(config.seed)
         self.epoch = initial_epoch
@@ -123,7 +128,7 @@ class StereoOdometry:
                 f"{frame.right.shape} {frame.right.dtype}"
             )
         left_gray, right_gray = to_gray(frame.left), to_gray(frame.right)
-        left, right = self.detector.detect(left_gray), self.detector.detect(right_gray)
+        left, right = self.detector.detect_pair(left_gray, right_gray)
         l2r, r2l = match_stereo(left, right, self.cfg.min_disparity, self.cfg.max_disparity, self.cfg.row_tolerance_px)
         return StereoView(left_gray, right_gray, left, right, l2r, r2l)
 

@@ -9,6 +9,7 @@ which a vehicle camera does not need, and it rejects illumination offsets becaus
 
 from __future__ import annotations
 
+import typing
 from dataclasses import dataclass
 
 import cv2
@@ -44,17 +45,44 @@ def to_gray(rgb: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
 
 
 class FeatureDetector:
-    """Finds FAST corners, keeps the strongest few per grid cell and describes them."""
+    """Finds FAST corners, keeps the strongest few per grid cell and describes them.
 
-    def __init__(self, threshold: int, cell_px: int, per_cell: int, max_features: int) -> None:
-        self.fast = cv2.FastFeatureDetector_create(threshold=threshold, nonmaxSuppression=True)
+    A dark or low-contrast pair (dusk, fog) has few corners above a fixed threshold, so the
+    threshold halves, down to ``min_threshold``, until the left image has ``min_corners``; the
+    right image uses the same threshold, so both see the same corners.
+    """
+
+    def __init__(
+        self,
+        threshold: int,
+        cell_px: int,
+        per_cell: int,
+        max_features: int,
+        min_corners: int = 0,
+        min_threshold: int = 4,
+    ) -> None:
+        levels = [threshold]
+        while levels[-1] // 2 >= min_threshold:
+            levels.append(levels[-1] // 2)
+        self.fast = [cv2.FastFeatureDetector_create(threshold=t, nonmaxSuppression=True) for t in levels]
         self.cell_px = cell_px
         self.per_cell = per_cell
         self.max_features = max_features
+        self.min_corners = min_corners
 
-    def detect(self, gray: npt.NDArray[np.uint8]) -> Features:
+    def detect(self, gray: npt.NDArray[np.uint8], level: int = 0) -> Features:
         """Corners spread over the image, each with its descriptor."""
-        keypoints = self.fast.detect(gray, None)
+        return self._describe(gray, self.fast[level].detect(gray, None))
+
+    def detect_pair(self, left: npt.NDArray[np.uint8], right: npt.NDArray[np.uint8]) -> tuple[Features, Features]:
+        """Corners of a stereo pair at the highest threshold that finds enough in the left image."""
+        level, keypoints = 0, self.fast[0].detect(left, None)
+        while len(keypoints) < self.min_corners and level + 1 < len(self.fast):
+            level += 1
+            keypoints = self.fast[level].detect(left, None)
+        return self._describe(left, keypoints), self.detect(right, level)
+
+    def _describe(self, gray: npt.NDArray[np.uint8], keypoints: typing.Sequence[cv2.KeyPoint]) -> Features:
         h, w = gray.shape
         if not keypoints:
             return _empty()

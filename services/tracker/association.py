@@ -40,9 +40,13 @@ class Weights:
 
 
 def color_distance(rgb_t: NDArray, hsl_t: NDArray, rgb_c: NDArray, hsl_c: NDArray) -> NDArray:
-    """Eq. 1 between every track (rows) and every cluster (columns); hue wraps around at 1."""
+    """Eq. 1 between every track (rows) and every cluster (columns); hue wraps around at 1.
+
+    The hue of a grey is noise (asphalt, concrete and glass flip between any two hues from frame to
+    frame), so the hue difference counts in proportion to the lesser of the two saturations.
+    """
     d_hue = np.abs(hsl_t[:, None, 0] - hsl_c[None, :, 0])
-    d_hue = np.minimum(d_hue, 1.0 - d_hue)
+    d_hue = np.minimum(d_hue, 1.0 - d_hue) * np.minimum(hsl_t[:, None, 1], hsl_c[None, :, 1])
     return cdist(rgb_t, rgb_c) + d_hue + cdist(hsl_t[:, 1:3], hsl_c[:, 1:3], "cityblock")
 
 

@@ -25,7 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.config import Config, VolumeConfig
-from common.messages import Clusters, EgoMotion, Obstacle, Obstacles
+from common.messages import Clusters, EgoMotion, Obstacles
 from services.tracker import kalman
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
 from services.tracker.measurement import cut_covariance, stereo_covariance, visibility_covariance
@@ -39,7 +39,8 @@ from services.tracker.motion_state import (
 )
 from services.tracker.observations import Observations, observe
 from services.tracker.queues import advance
-from services.tracker.track import QUEUE_NAMES, TrackTable
+from services.tracker.report import obstacles_of
+from services.tracker.track import TrackTable
 
 NDArray = npt.NDArray[Any]
 
@@ -117,7 +118,7 @@ class Tracker:
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
         """One frame of clusters (world frame) and its egomotion -> every track as an obstacle."""
         if self._is_stale(clusters):
-            return self._report(clusters, ego)
+            return obstacles_of(self.tracks, self.ego.velocity, clusters, ego)
         dt, elapsed = self._time_step(clusters)
         trusted = self._observe_ego(ego)
         obs = self._observe(clusters)
@@ -131,7 +132,7 @@ class Tracker:
         self._spawn(obs.take(fresh), r[fresh])
         if trusted:
             self._label_motion(clusters.voxel_edge)
-        return self._report(clusters, ego)
+        return obstacles_of(self.tracks, self.ego.velocity, clusters, ego)
 
     # ------------------------------------------------------------------ input guards
 
@@ -283,45 +284,3 @@ class Tracker:
         speed, sigma = speed_and_sigma(t.x[:, 3:6], t.p[:, 3:6, 3:6])
         slide = slide_speed(t.bbox_max - t.bbox_min, t.extent_slow, self.frame_period_s, voxel_edge)
         t.moving = label(t.moving, speed, sigma, slide, t.age, self.hysteresis)
-
-    # ------------------------------------------------------------------ output
-
-    def _report(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
-        t = self.tracks
-        centroid = t.x[:, 0:3] + t.offset
-        shift = centroid - t.centroid
-        bbox_min, bbox_max = t.bbox_min + shift, t.bbox_max + shift
-        velocity = t.x[:, 3:6].copy()
-        speed, _ = speed_and_sigma(velocity, t.p[:, 3:6, 3:6])
-        rotation = ego.pose[0:3, 0:3] if np.isfinite(ego.pose).all() else np.eye(3)
-        velocity_rel = (velocity - self.ego.velocity) @ rotation  # R^T (v - v_ego), row-wise
-        position_cov = t.p[:, 0:3, 0:3].copy()
-        velocity_cov = t.p[:, 3:6, 3:6].copy()
-        colour = t.rgb.astype(np.float32)
-        columns = [c.tolist() for c in (t.ids, t.queue, t.volume, speed, t.moving, t.age)]
-        obstacles = [
-            Obstacle(
-                id=track_id,
-                state=QUEUE_NAMES[queue],
-                centroid=centroid[i],
-                bbox_min=bbox_min[i],
-                bbox_max=bbox_max[i],
-                volume=volume,
-                velocity=velocity[i],
-                velocity_rel=velocity_rel[i],
-                speed=s,
-                moving=moving,
-                position_cov=position_cov[i],
-                velocity_cov=velocity_cov[i],
-                age=age,
-                color_rgb=colour[i],
-            )
-            for i, (track_id, queue, volume, s, moving, age) in enumerate(zip(*columns, strict=True))
-        ]
-        return Obstacles(
-            frame_id=clusters.frame_id,
-            stamp_ns=clusters.stamp_ns,
-            obstacles=obstacles,
-            world_epoch=clusters.world_epoch,
-            ego_pose=np.array(ego.pose, dtype=np.float64),
-        )

@@ -63,9 +63,7 @@ def slide_speed(extent: NDArray, extent_slow: NDArray, period_s: float, voxel_ed
     return 0.5 * np.linalg.norm(growth, axis=1) / lag
 
 
-def label(
-    moving: NDArray, speed: NDArray, sigma: NDArray, slide: NDArray, age: NDArray, rule: Hysteresis
-) -> NDArray:
+def label(moving: NDArray, speed: NDArray, sigma: NDArray, slide: NDArray, age: NDArray, rule: Hysteresis) -> NDArray:
     """New moving flags from the previous ones."""
     bound = speed - rule.sigma_k * sigma - slide
     turn_on = (bound > rule.on) & (age >= rule.min_frames)

@@ -39,7 +39,7 @@ def describe(vmap: VoxelMap, labels: npt.NDArray[np.int32]) -> list[Cluster]:
     points = sums[:, 0]
     rgb_mean, rgb_var = _pooled(sums[:, RGB], sums[:, RGB2], points)
     hsl_mean, hsl_var = _pooled(sums[:, HSL], sums[:, HSL2], points)
-    centre = np.add.reduceat(centroids, starts, axis=0) / counts[:, None]
+    centre = np.array([np.median(centroids[s:s + n], axis=0) for s, n in zip(starts, counts, strict=True)])
     half = 0.5 * vmap.edge
     box_lo = np.minimum.reduceat(centroids, starts, axis=0) - half
     box_hi = np.maximum.reduceat(centroids, starts, axis=0) + half
