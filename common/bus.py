@@ -9,7 +9,6 @@ pushes back on the producer. Blocking ``recv()`` swallows Ctrl-C, so every wait 
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import queue
@@ -22,7 +21,7 @@ from typing import Generic, TypeVar
 
 import zenoh
 
-from common.config import BusConfig, Config, load_config
+from common.config import BusConfig
 from common.errors import BusError, DecodeError
 from common.messages import Message, decode, encode, key_for
 
@@ -242,23 +241,3 @@ def watch_alive(session: zenoh.Session, vehicle: str, on_change: Callable[[str, 
 
     return session.liveliness().declare_subscriber(liveliness_key("*", vehicle), handler, history=True)
 
-
-def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
-    """The options every bus-facing command takes, so a launcher can start any of them alike."""
-    parser.add_argument("--connect", action="append", default=[], metavar="ENDPOINT", help="e.g. tcp/10.0.0.2:7447")
-    parser.add_argument("--listen", action="append", default=[], metavar="ENDPOINT", help="e.g. tcp/127.0.0.1:7447")
-    parser.add_argument("--mode", choices=("peer", "client"), default=None, help="Zenoh mode (default: peer)")
-    parser.add_argument("--config", default=None, help="configuration file (TOML/YAML)")
-    parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE")
-
-
-def config_from_arguments(args: argparse.Namespace) -> Config:
-    """The configuration tree from --config/--set, with --connect/--listen/--mode applied on top."""
-    cfg = load_config(getattr(args, "config", None), getattr(args, "sets", []) or [])
-    if getattr(args, "connect", None):
-        cfg.bus.connect = list(args.connect)
-    if getattr(args, "listen", None):
-        cfg.bus.listen = list(args.listen)
-    if getattr(args, "mode", None):
-        cfg.bus.mode = args.mode
-    return cfg
