@@ -1,9 +1,9 @@
 """Every message on the bus and in recordings, and the one msgpack codec for all of them.
 
 A message is a keyword-only dataclass with a schema name and version (``stereovox.PointCloud/1``).
-numpy arrays travel as ``{dtype, shape, bytes}`` with a dtype whitelist and size limits, so a
-hostile or corrupt payload fails with :class:`DecodeError` instead of allocating gigabytes or
-producing a wrongly shaped array deep inside a stage.
+Arrays and images travel as :mod:`common.wire_arrays` packs them, within its limits; decoding
+checks every field against the dataclass's type hints, so a hostile or corrupt payload fails with
+:class:`DecodeError` instead of producing a wrongly typed or shaped value deep inside a stage.
 
 The contract (ARCHITECTURE.md): ``frame_id`` is the capture sequence number and is monotonic,
 ``stamp_ns`` the capture time, and ``timing`` a trail of ``(stage, start_ns, end_ns)`` in wall
@@ -13,31 +13,25 @@ clock time that every stage extends; a stage joining two inputs carries the unio
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 import typing
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, TypeVar
 
-import cv2
 import msgpack
 import numpy as np
 import numpy.typing as npt
 
 from common.errors import DecodeError
+from common.wire_arrays import (
+    MAX_ARRAY_BYTES,
+    pack_array,
+    pack_image,
+    unpack_array,
+    unpack_image,
+)
 
 NDArray = npt.NDArray[Any]
-
-#: dtypes an array may have on the wire; anything else is refused.
-DTYPES: frozenset[str] = frozenset(
-    {"uint8", "uint16", "int16", "int32", "int64", "float32", "float64", "bool"}
-)
-#: largest single array accepted (bytes): a 4K RGB image is 25 MB, a 1M-point cloud 12 MB.
-MAX_ARRAY_BYTES: int = 64 * 1024 * 1024
-#: largest number of dimensions an array may declare.
-MAX_NDIM: int = 4
-#: image encodings a StereoFrame may travel with.
-IMAGE_FORMATS: tuple[str, ...] = ("raw", "png", "jpeg")
 
 Timing = tuple[str, int, int]
 
@@ -347,30 +341,6 @@ def stamp_output(out: M, inputs: typing.Sequence[Message], stage: str, start_ns:
 
 # ----------------------------------------------------------------------------- codec
 
-_ND = "__nd__"
-_IMG = "__img__"
-
-
-def _pack_array(arr: NDArray) -> dict[str, Any]:
-    arr = np.ascontiguousarray(arr)
-    if arr.dtype.name not in DTYPES:
-        raise DecodeError(f"dtype {arr.dtype.name} cannot be sent; allowed: {sorted(DTYPES)}")
-    # a flat byte view: memoryview.cast refuses arrays with a zero in their shape (an empty cloud)
-    data = memoryview(arr.reshape(-1).view(np.uint8))
-    return {_ND: True, "dtype": arr.dtype.name, "shape": list(arr.shape), "data": data}
-
-
-def _pack_image(arr: NDArray, fmt: str) -> Any:
-    if fmt == "raw":
-        return _pack_array(arr)
-    if fmt not in IMAGE_FORMATS:
-        raise DecodeError(f"image format {fmt!r} unknown; allowed: {IMAGE_FORMATS}")
-    ext = ".png" if fmt == "png" else ".jpg"
-    ok, buf = cv2.imencode(ext, cv2.cvtColor(np.ascontiguousarray(arr), cv2.COLOR_RGB2BGR))
-    if not ok:
-        raise DecodeError(f"could not encode image as {fmt}")
-    return {_IMG: fmt, "data": buf.tobytes()}
-
 
 def _to_wire(obj: Any) -> Any:
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
@@ -379,12 +349,12 @@ def _to_wire(obj: Any) -> Any:
         for f in dataclasses.fields(obj):
             value = getattr(obj, f.name)
             if "dtype" in f.metadata and isinstance(obj, StereoFrame) and f.name in ("left", "right"):
-                out[f.name] = _pack_image(value, fmt)
+                out[f.name] = pack_image(value, fmt)
             else:
                 out[f.name] = _to_wire(value)
         return out
     if isinstance(obj, np.ndarray):
-        return _pack_array(obj)
+        return pack_array(obj)
     if isinstance(obj, (list, tuple)):
         return [_to_wire(v) for v in obj]
     if isinstance(obj, dict):
@@ -398,87 +368,6 @@ def encode(msg: Message) -> bytes:
     """Serialise a message: ``{"schema": "PointCloud", "v": 1, "body": {...}}`` in msgpack."""
     body = _to_wire(msg)
     return msgpack.packb({"schema": msg.SCHEMA, "v": msg.VERSION, "body": body}, use_bin_type=True)
-
-
-def _unpack_array(value: Any, where: str, dtype: str | None, shape: tuple[int | None, ...] | None) -> NDArray:
-    if not isinstance(value, dict) or not value.get(_ND):
-        raise DecodeError(f"{where}: expected an array, got {type(value).__name__}")
-    name, dims, data = value.get("dtype"), value.get("shape"), value.get("data")
-    if name not in DTYPES:
-        raise DecodeError(f"{where}: dtype {name!r} not allowed")
-    if dtype is not None and name != dtype:
-        raise DecodeError(f"{where}: dtype {name} where {dtype} is required")
-    if not isinstance(dims, list) or len(dims) > MAX_NDIM or not all(
-        isinstance(d, int) and not isinstance(d, bool) and 0 <= d <= MAX_ARRAY_BYTES for d in dims
-    ):
-        raise DecodeError(f"{where}: shape {dims!r} is not a list of at most {MAX_NDIM} sizes")
-    if shape is not None and (
-        len(dims) != len(shape) or any(s is not None and s != d for s, d in zip(shape, dims, strict=False))
-    ):
-        raise DecodeError(f"{where}: shape {tuple(dims)} does not fit {shape}")
-    if not isinstance(data, (bytes, bytearray)):
-        raise DecodeError(f"{where}: array data is {type(data).__name__}, not bytes")
-    itemsize = np.dtype(name).itemsize
-    expected = math.prod(dims) * itemsize
-    if expected > MAX_ARRAY_BYTES:
-        raise DecodeError(f"{where}: {expected} bytes declared, limit {MAX_ARRAY_BYTES}")
-    if len(data) != expected:
-        raise DecodeError(f"{where}: {len(data)} bytes where shape {tuple(dims)} {name} needs {expected}")
-    return np.frombuffer(data, dtype=name).reshape(dims)
-
-
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-#: JPEG start-of-frame markers (baseline, progressive, lossless, arithmetic): they carry the size.
-_JPEG_SOF = frozenset({0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF})
-
-
-def _encoded_size(data: bytes, fmt: str, where: str) -> tuple[int, int]:
-    """Width and height from a PNG or JPEG header, read before decoding.
-
-    A few hundred bytes of PNG can declare a 40000 x 40000 image: decoding first would allocate
-    gigabytes, so the declared size is checked against the array limit before OpenCV sees it.
-    """
-    if fmt == "png":
-        if len(data) < 24 or not data.startswith(_PNG_SIGNATURE) or data[12:16] != b"IHDR":
-            raise DecodeError(f"{where}: data is not png (no PNG signature and IHDR header)")
-        return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
-    if not data.startswith(b"\xff\xd8"):
-        raise DecodeError(f"{where}: data is not jpeg (no start-of-image marker)")
-    i = 2
-    while i + 4 <= len(data):
-        if data[i] != 0xFF:
-            break
-        marker = data[i + 1]
-        if marker == 0xFF:  # fill byte
-            i += 1
-            continue
-        if marker in (0x01, *range(0xD0, 0xD8)):  # markers without a length
-            i += 2
-            continue
-        length = int.from_bytes(data[i + 2 : i + 4], "big")
-        if marker in _JPEG_SOF and i + 9 <= len(data):
-            return int.from_bytes(data[i + 7 : i + 9], "big"), int.from_bytes(data[i + 5 : i + 7], "big")
-        i += 2 + length
-    raise DecodeError(f"{where}: jpeg data has no start-of-frame header with the image size")
-
-
-def _unpack_image(value: Any, where: str) -> NDArray:
-    if isinstance(value, dict) and _IMG in value:
-        data = value.get("data")
-        if value[_IMG] not in ("png", "jpeg") or not isinstance(data, (bytes, bytearray)):
-            raise DecodeError(f"{where}: bad encoded image")
-        if len(data) > MAX_ARRAY_BYTES:
-            raise DecodeError(f"{where}: encoded image of {len(data)} bytes over the limit")
-        width, height = _encoded_size(bytes(data), value[_IMG], where)
-        if width * height * 3 > MAX_ARRAY_BYTES:
-            raise DecodeError(
-                f"{where}: {value[_IMG]} declares {width}x{height} pixels, over the limit of {MAX_ARRAY_BYTES} bytes"
-            )
-        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-        if img is None or img.ndim != 3 or img.shape[2] != 3:
-            raise DecodeError(f"{where}: {value[_IMG]} data does not decode to a colour image")
-        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-    return _unpack_array(value, where, "uint8", (None, None, 3))
 
 
 _HINTS: dict[type, dict[str, Any]] = {}
@@ -527,9 +416,9 @@ def _from_wire(cls: type, value: Any, where: str) -> Any:
         sub = f"{where}.{f.name}"
         if "dtype" in f.metadata:
             if cls is StereoFrame and f.name in ("left", "right"):
-                kwargs[f.name] = _unpack_image(raw, sub)
+                kwargs[f.name] = unpack_image(raw, sub)
             else:
-                kwargs[f.name] = _unpack_array(raw, sub, f.metadata["dtype"], f.metadata["shape"])
+                kwargs[f.name] = unpack_array(raw, sub, f.metadata["dtype"], f.metadata["shape"])
             continue
         kwargs[f.name] = _convert(hints[f.name], raw, sub)
     return cls(**kwargs)

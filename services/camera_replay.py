@@ -25,8 +25,9 @@ import zenoh
 from common.bus import Publisher, declare_alive, open_session, subscribe, watch_alive
 from common.config import Config
 from common.errors import BusError, ConfigError, DecodeError
-from common.messages import IMAGE_FORMATS, Obstacles, StereoFrame, decode, encode, key_for, now_ns, topic_of
+from common.messages import Obstacles, StereoFrame, decode, encode, key_for, now_ns, topic_of
 from common.recording import RawRecord, RecordingReader, open_recording, peek_stamp
+from common.wire_arrays import IMAGE_FORMATS
 from services.health import HealthReporter, StageHealth
 from services.replay_clock import Pacer, Renumbering
 from services.service_args import add_bus_arguments, config_from_args, stop_on_signals
