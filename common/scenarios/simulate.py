@@ -22,7 +22,6 @@ import numpy as np
 from common.config import Config, VolumeConfig
 from common.errors import ConfigError
 from common.messages import (
-    IMAGE_FORMATS,
     GroundTruthDisparity,
     GroundTruthEgo,
     GroundTruthObject,
@@ -35,6 +34,7 @@ from common.recording import RecordingWriter
 from common.scenarios.catalogue import SCENARIOS, build
 from common.scenarios.render import Rendered, Renderer, Rig
 from common.scenarios.world import Look, World
+from common.wire_arrays import IMAGE_FORMATS
 
 log = logging.getLogger(__name__)
 
