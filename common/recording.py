@@ -310,7 +310,7 @@ class RecordingReader:
             if wanted_topics is not None and topic_of(rec.key) not in wanted_topics:
                 continue
             try:
-                yield rec.key, decode(rec.data)
+                yield rec.key, decode(rec.data, message_type_for_key(rec.key))  # wrong type on a key: bad input
             except DecodeError:
                 self.decode_errors += 1
 
