@@ -176,6 +176,9 @@ class ReplayConfig:
     rate: float = 1.0  # 0 = as fast as possible
     lockstep: bool = False  # frame k+1 only after the tracker reported frame k
     lockstep_timeout_s: float = 10.0
+    # what lockstep waits for: the tracker (one frame in flight) or stereo_depth/points (paced by the
+    # first stage, later stages pipelined)
+    lockstep_topic: str = "tracker/obstacles"
     image_format: str = "raw"  # raw | png | jpeg on the wire
     topics: list[str] = field(default_factory=lambda: ["camera/stereo", "groundtruth/**"])
     wait_for: list[str] = field(default_factory=list)  # services whose liveliness to await first

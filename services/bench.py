@@ -2,7 +2,10 @@
 
 Per-stage medians of the pure cores, in-process throughput, the distributed graph (deploy/live.yaml:
 every stage its own process, the camera replayed flat out) with end-to-end latency, drops, memory
-and CPU per service, and the voxel-edge sweep of the paper's Fig. 5. Figures, never assertions:
+and CPU per service, and the voxel-edge sweep of the paper's Fig. 5; then the per-stage figures
+and the sweep again at KITTI's image size (1242x375), on an imported KITTI recording when one is
+given and otherwise on the urban scenario rendered at that size, so the bench needs no dataset.
+Figures, never assertions:
 machines here are shared, so read medians and compare ratios taken in the same run.
 """
 
@@ -28,6 +31,7 @@ from services.launch_spec import load_spec
 from services.pipeline import Pipeline, config_for
 
 LIVE_SPEC = REPO / "deploy" / "live.yaml"
+KITTI_SIZE = (1242, 375)
 STAGES = ("stereo_depth", "odometry", "voxel_mapper", "tracker")
 WARMUP = 3
 
@@ -147,7 +151,8 @@ def bench_sweep(results: list[Any], cfg: Config) -> list[dict[str, float]]:
     return edge_sweep(clouds, egos, cfg=cfg)
 
 
-def run_bench(recording: Path, frames: int, seconds: float, plots: Path | None) -> dict[str, Any]:
+def bench_frames(recording: Path, frames: int) -> dict[str, Any]:
+    """Per-stage figures, in-process rate and the voxel sweep of one recording's first frames."""
     loaded, cfg = load_frames(recording, frames)
     print(f"bench: {len(loaded)} frames of {recording.name} at {loaded[0].left.shape[1]}x{loaded[0].left.shape[0]}",
           file=sys.stderr)
@@ -156,8 +161,25 @@ def run_bench(recording: Path, frames: int, seconds: float, plots: Path | None) 
     report["voxel_sweep"] = [
         {"edge_m": r["edge_m"], "ms": r["ms"], "clusters": int(r["clusters"])} for r in bench_sweep(results, cfg)
     ]
+    return report
+
+
+def bench_kitti_size(kitti: Path | None, frames: int, workdir: Path) -> dict[str, Any]:
+    """The in-process figures at 1242x375: a KITTI recording, or urban rendered at that size."""
+    if kitti is None:
+        from common.scenarios.simulate import simulate_to_file
+
+        kitti = simulate_to_file("urban", workdir / "urban_kitti_size.mcap", frames, seed=1, size=KITTI_SIZE)
+    return {"recording": kitti.name, **bench_frames(kitti, frames)}
+
+
+def run_bench(recording: Path, frames: int, seconds: float, plots: Path | None,
+              kitti: Path | None = None, kitti_frames: int = 12) -> dict[str, Any]:
+    report = bench_frames(recording, frames)
     with tempfile.TemporaryDirectory(prefix="stereovox-bench-") as tmp:
         report.update(bench_distributed(recording, seconds, Path(tmp)))
+        if kitti_frames > 0:
+            report["kitti_size"] = bench_kitti_size(kitti, kitti_frames, Path(tmp))
     if plots is not None:
         _plots(report, plots)
     return report
@@ -193,21 +215,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seconds", type=float, default=25.0, help="duration of the distributed run")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON on the last line")
     parser.add_argument("--plots", type=Path, default=None, help="write PNGs (per-stage latency, voxel sweep) here")
+    parser.add_argument("--kitti", type=Path, default=None,
+                        help="a 1242x375 recording (stereovox import kitti-raw ...) for the KITTI-size figures; "
+                             "default: the urban scenario rendered at that size")
+    parser.add_argument("--kitti-frames", type=int, default=12, help="frames at KITTI size (0 = skip)")
 
 
-def run(args: argparse.Namespace) -> int:
-    report = run_bench(args.recording, args.frames, args.seconds, args.plots)
+def _print_frames(report: dict[str, Any]) -> None:
     for stage, fig in report["stages"].items():
         print(f"{stage:<14} p50 {fig['p50_ms']:7.1f} ms   p95 {fig['p95_ms']:7.1f} ms")
     print(f"process_hz      {report['process_hz']:.2f}")
+    for row in report["voxel_sweep"]:
+        print(f"voxel {row['edge_m']:.2f} m: {row['ms']:.1f} ms, {row['clusters']} clusters")
+
+
+def run(args: argparse.Namespace) -> int:
+    report = run_bench(args.recording, args.frames, args.seconds, args.plots, args.kitti, args.kitti_frames)
+    _print_frames(report)
     print(f"distributed_hz  {report['distributed_hz'] or float('nan'):.2f}")
     if report["e2e_ms"]:
         print(f"e2e             p50 {report['e2e_ms']['p50']:.1f} ms  p95 {report['e2e_ms']['p95']:.1f} ms")
     print(f"dropped         {report['dropped']}")
     print("rss_mb          " + ", ".join(f"{k} {v:.0f}" for k, v in report["rss_mb"].items() if v))
     print("cpu_pct         " + ", ".join(f"{k} {v:.0f}" for k, v in report["cpu_pct"].items() if v))
-    for row in report["voxel_sweep"]:
-        print(f"voxel {row['edge_m']:.2f} m: {row['ms']:.1f} ms, {row['clusters']} clusters")
+    if "kitti_size" in report:
+        print(f"--- at 1242x375 ({report['kitti_size']['recording']})")
+        _print_frames(report["kitti_size"])
     if args.json:
         print(json.dumps({k: v for k, v in report.items() if k != "obstacle_frames"}))
     return 0

@@ -3,7 +3,10 @@
 Timing is the recording's (``publish_time``, the capture stamp) scaled by ``--rate``, or none
 (``--max``), or the pipeline's own (``--lockstep``: frame k+1 goes out only once the tracker has
 published Obstacles for frame k; a reply that does not come within ``replay.lockstep_timeout_s``
-is logged, counted in Health and the summary, and replay goes on). Every StereoFrame gets a
+is logged, counted in Health and the summary, and replay goes on). ``--lockstep-on
+stereo_depth/points`` paces by the first stage instead: the camera runs exactly as fast as stereo
+takes frames, and the later stages work on frame k while stereo works on k+1 — the pipeline's
+own top rate, without a flood of frames that only get dropped. Every StereoFrame gets a
 fresh timing trail ``[("camera_replay", t, t)]`` so latencies never depend on when the data was
 recorded; ground truth of the first pass goes out byte for byte as recorded. Before the first
 frame the replay waits for the liveliness tokens of the services it feeds (``--wait-for``; the
@@ -25,7 +28,7 @@ import zenoh
 from common.bus import Publisher, declare_alive, open_session, subscribe, watch_alive
 from common.config import Config
 from common.errors import BusError, ConfigError, DecodeError
-from common.messages import Obstacles, StereoFrame, decode, encode, key_for, now_ns, topic_of
+from common.messages import TOPICS, StereoFrame, decode, encode, key_for, now_ns, topic_of
 from common.recording import RawRecord, RecordingReader, open_recording, peek_stamp
 from common.wire_arrays import IMAGE_FORMATS
 from services.health import HealthReporter, StageHealth
@@ -90,15 +93,17 @@ class Replay:
         except zenoh.ZError as exc:
             raise ConfigError(f"replay.topics {rc.topics!r}: not valid key expressions ({exc})") from None
         self.pubs: dict[str, Publisher] = {}
-        # FIFO, not newest: every report is taken, so Health shows no "dropped" obstacles that were merely superseded
-        self.obstacles = (
-            subscribe(session, key_for("tracker/obstacles", cfg.bus.vehicle), Obstacles, "fifo", depth=64)
+        if rc.lockstep and rc.lockstep_topic not in TOPICS:
+            raise ConfigError(f"replay.lockstep_topic {rc.lockstep_topic!r} is none of {sorted(TOPICS)}")
+        # FIFO, not newest: every report is taken, so Health shows no "dropped" reports that were merely superseded
+        self.reports = (
+            subscribe(session, key_for(rc.lockstep_topic, cfg.bus.vehicle), TOPICS[rc.lockstep_topic], "fifo", depth=64)
             if rc.lockstep
             else None
         )
-        self._pending: int | None = None  # last frame id whose obstacles lockstep still awaits
-        self._done = -1  # highest frame id the tracker reported
-        self.health = StageHealth("camera_replay", [self.obstacles] if self.obstacles else [])
+        self._pending: int | None = None  # last frame id whose report lockstep still awaits
+        self._done = -1  # highest frame id reported
+        self.health = StageHealth("camera_replay", [self.reports] if self.reports else [])
         self.health.extra |= {
             "lockstep_timeouts": lambda: self.stats.lockstep_timeouts,
             "other_messages": lambda: self.stats.other,
@@ -124,7 +129,7 @@ class Replay:
                     break
                 try:
                     if topic == CAMERA_TOPIC:
-                        self._await_obstacles()
+                        self._await_report()
                         self.pacer.wait(stamp)
                         last_id = self._publish_frame(rec, frame_id, stamp)
                     else:
@@ -139,7 +144,7 @@ class Replay:
                 if loop and self.stats.frames:
                     continue
             break
-        self._await_obstacles()
+        self._await_report()
         return self.stats
 
     def _end_of_pass(self) -> None:
@@ -180,9 +185,9 @@ class Replay:
         self._publisher(topic).put(data)
         self.stats.other += 1
 
-    def _await_obstacles(self) -> None:
-        """Lockstep: block until the tracker has reported the last frame sent, or report a timeout."""
-        if self.obstacles is None or self._pending is None:
+    def _await_report(self) -> None:
+        """Lockstep: block until the paced-by topic has reported the last frame sent, or count a timeout."""
+        if self.reports is None or self._pending is None:
             return
         frame_id, self._pending = self._pending, None
         timeout = self.cfg.replay.lockstep_timeout_s
@@ -193,19 +198,19 @@ class Replay:
                 self.stats.lockstep_timeouts += 1
                 self.health.last_error = f"lockstep timeout on frame {frame_id}"
                 log.warning(
-                    "lockstep: no obstacles for frame %d within %.1f s (%d timeouts so far); going on",
-                    frame_id, timeout, self.stats.lockstep_timeouts,
+                    "lockstep: no %s for frame %d within %.1f s (%d timeouts so far); going on",
+                    self.cfg.replay.lockstep_topic, frame_id, timeout, self.stats.lockstep_timeouts,
                 )
                 return
-            item = self.obstacles.recv(min(remaining, 0.1))
+            item = self.reports.recv(min(remaining, 0.1))
             if item is not None:
                 self._done = max(self._done, item.msg.frame_id)
 
     def close(self) -> None:
         for pub in self.pubs.values():
             pub.close()
-        if self.obstacles is not None:
-            self.obstacles.close()
+        if self.reports is not None:
+            self.reports.close()
 
 
 def run_replay(
@@ -220,7 +225,7 @@ def run_replay(
     try:
         if wait:
             wait_for_services(session, cfg, wait, stop)
-        mode = "lockstep" if rc.lockstep else ("max" if rc.rate <= 0 else f"rate {rc.rate:g}")
+        mode = f"lockstep on {rc.lockstep_topic}" if rc.lockstep else ("max" if rc.rate <= 0 else f"rate {rc.rate:g}")
         print(f"camera_replay ready: {path} ({mode}{', loop' if loop else ''})", flush=True)
         health = Publisher(session, key_for("health/camera_replay", cfg.bus.vehicle))
         with HealthReporter(replay.health, health, cfg.health_period_s):
@@ -244,6 +249,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     pace.add_argument("--rate", type=float, help="speed factor on the recorded timing (default 1)")
     pace.add_argument("--max", action="store_true", help="as fast as the bus takes it")
     pace.add_argument("--lockstep", action="store_true", help="frame k+1 only after the tracker reported frame k")
+    parser.add_argument("--lockstep-on", metavar="TOPIC",
+                        help="lockstep on this topic's reports instead, e.g. stereo_depth/points (implies --lockstep)")
     parser.add_argument("--loop", action="store_true", help="start again at the end (frame ids keep increasing)")
     parser.add_argument("--max-frames", type=int, default=0, metavar="N", help="stop after N camera frames")
     parser.add_argument("--keys", help="comma-separated topics to replay (default camera/stereo,groundtruth/**)")
@@ -258,7 +265,8 @@ def run(args: argparse.Namespace) -> int:
         args,
         {
             "replay.rate": 0.0 if args.max else args.rate,
-            "replay.lockstep": True if args.lockstep else None,
+            "replay.lockstep": True if args.lockstep or args.lockstep_on else None,
+            "replay.lockstep_topic": args.lockstep_on,
             "replay.image_format": args.image_format,
             "replay.topics": keys,
             "replay.wait_for": [s for s in args.wait_for.split(",") if s] if args.wait_for else None,

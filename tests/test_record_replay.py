@@ -230,7 +230,7 @@ def test_lockstep_waits_for_obstacles_and_reports_a_timeout(
     tracker.close()
     watcher.undeclare()
     log = processes.log(replay)
-    assert "no obstacles for frame 3 within 1.5 s" in log and "1 lockstep timeouts" in log
+    assert "no tracker/obstacles for frame 3 within 1.5 s" in log and "1 lockstep timeouts" in log
     wait_for(lambda: "camera_replay" in hub.health and hub.health["camera_replay"].frames_out == 8, 10,
              "the replay's last Health report")
     assert hub.health["camera_replay"].detail["lockstep_timeouts"] == 1
