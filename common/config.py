@@ -59,16 +59,18 @@ class StereoConfig:
     min_depth_m: float = 2.0  # nearest obstacle the search range must reach
     fine_disparities: int = 64  # full-resolution range; beyond it the half-resolution pass measures
     block_size: int = 3
-    p1_factor: int = 16  # P1 = p1_factor * channels * block_size^2
-    p2_factor: int = 64
-    uniqueness: int = 0  # full-resolution pass (the left-right check does the rejecting)
-    coarse_uniqueness: int = 15  # half-resolution pass, whose pixels also fill holes
+    p1_factor: int = 12  # P1 = p1_factor * channels * block_size^2
+    p2_factor: int = 48
+    uniqueness: int = 10  # full-resolution pass
+    coarse_uniqueness: int = 25  # half-resolution pass, whose pixels also fill holes
     speckle_window: int = 100
     speckle_range: int = 2
-    lr_check: str = "coarse"  # coarse (right view at half resolution) | full | none
+    lr_check: str = "full"  # full (right view at full resolution) | coarse (at half: faster, less dense) | none
     lr_max_diff_px: float = 1.0  # pixels of the coarser of the two disparity maps compared
     fill_support_px: int = 5  # holes take the coarse value if within the fine ones this near (px); 0 = off
-    pre_filter_cap: int = 63
+    hidden_fill_max_px: int = 12  # holes the right camera cannot see take the adjacent surface, this far (px); 0 = off
+    hidden_fill_colour_step: int = 16  # ... but not across a colour edge stronger than this (grey levels)
+    pre_filter_cap: int = 63  # lower caps gain 0.3 points of D1 but lose sub-pixel precision
     mode: str = "3way"  # 3way | sgbm | hh | hh4
     color_matching: bool = False  # False = match grey images (measured better and faster)
     fill_left_border: bool = True  # pad on the left so the first columns get a disparity too

@@ -15,6 +15,7 @@ from common.evaluation.stereo import d1_frame
 from common.geometry import camera_to_vehicle
 from common.messages import Calibration, StereoFrame, decode, encode
 from services.stereo_depth import StereoDepth
+from services.stereo_depth.occlusion import fill_hidden
 
 WIDTH, HEIGHT = 320, 240
 FX, CX, CY, BASELINE, CAMERA_HEIGHT = 300.0, 160.0, 120.0, 0.4, 1.5
@@ -220,17 +221,46 @@ def test_search_range_follows_the_calibration() -> None:
     assert _core(num_disparities=100).search_range(_calib()) == 112
 
 
+def test_hidden_pixels_take_the_surface_beside_them_but_not_across_a_colour_edge() -> None:
+    """Row 0: left border unseen (match left of the right image); row 1: background hidden by a foreground."""
+    image = np.full((3, 40, 3), 100, np.uint8)
+    image[2, 5:] = 200  # row 2: a colour edge between the hole and the surface that would fill it
+    disparity = np.full((3, 40), np.nan, np.float32)
+    disparity[0, 10:] = 12.0  # columns 0-9 would match at -12..-3: unseen, filled with 12
+    disparity[1, :20], disparity[1, 26:] = 10.0, 16.0  # 6-px hole = 16 - 10: the background's occlusion
+    disparity[2, 10:] = 12.0
+    filled = fill_hidden(disparity, image, colour_step=16, max_px=12)
+    assert np.array_equal(filled[0], np.full(40, 12.0, np.float32))
+    assert np.all(filled[1, 20:26] == 10.0)  # the background (smaller disparity), not the foreground
+    assert np.isnan(filled[2, :5]).all() and np.all(filled[2, 5:10] == 12.0)
+    assert np.isnan(disparity[0, 0])  # input untouched
+
+
+def test_holes_geometry_does_not_explain_stay_empty() -> None:
+    image = np.full((3, 60, 3), 100, np.uint8)
+    disparity = np.full((3, 60), np.nan, np.float32)
+    disparity[0, 30:] = 12.0  # columns 0-12 would match left of the right image, 13-29 inside it
+    disparity[1, :20], disparity[1, 40:] = 10.0, 14.0  # a 20-px hole cannot hide behind a 4-px step
+    disparity[2, :20], disparity[2, 26:] = 16.0, 10.0  # right of a foreground nothing is hidden
+    filled = fill_hidden(disparity, image, colour_step=16, max_px=40)
+    assert np.all(filled[0, :13] == 12.0) and np.isnan(filled[0, 13:30]).all()  # 13-29: a matching failure
+    assert np.isnan(filled[1, 20:35]).all()  # only the last 4 columns (+1 px tolerance) fall behind the foreground
+    assert np.all(filled[1, 35:40] == 10.0)
+    assert np.isnan(filled[2, 20:26]).all()
+    assert np.isnan(fill_hidden(disparity, image, colour_step=16, max_px=4)[0, :30]).all()  # too far from it
+
+
 @pytest.mark.timeout(120)
-def test_middlebury_cones_and_teddy() -> None:
-    """Measured 3.8 % D1-est and 89 % density (11-12 % of these pixels are occluded in the right view)."""
-    core = _core(num_disparities=64, lr_check="full")
-    for scene in ("cones", "teddy"):
-        folder = shared_path("data", "middlebury", scene)
-        left, right = (cv2.cvtColor(cv2.imread(str(folder / n)), cv2.COLOR_BGR2RGB) for n in ("im2.png", "im6.png"))
-        truth = cv2.imread(str(folder / "disp2.png"), cv2.IMREAD_UNCHANGED).astype(np.float32) / 4.0
-        truth[truth == 0] = np.nan
-        calib = Calibration(fx=1000.0, fy=1000.0, cx=225.0, cy=187.0, baseline=0.1, width=450, height=375)
-        _, disp = core.process(StereoFrame(frame_id=0, stamp_ns=0, left=left, right=right, calib=calib))
-        scores = d1_frame(disp.disparity, truth)
-        assert scores["d1_est_pct"] is not None and scores["d1_est_pct"] < 4.5, scores
-        assert scores["density_pct"] is not None and scores["density_pct"] > 85.0, scores
+@pytest.mark.parametrize(("scene", "max_d1_est", "min_density"), [("cones", 3.8, 89.5), ("teddy", 4.0, 90.5)])
+def test_middlebury_with_the_importers_calibration(scene: str, max_d1_est: float, min_density: float) -> None:
+    """Measured: cones 3.47 % D1-est / 90.1 % density, teddy 3.72 % / 91.2 % (issue 5: mean <= 3.8 % / >= 90 %)."""
+    folder = shared_path("data", "middlebury", scene)
+    left, right = (cv2.cvtColor(cv2.imread(str(folder / n)), cv2.COLOR_BGR2RGB) for n in ("im2.png", "im6.png"))
+    truth = cv2.imread(str(folder / "disp2.png"), cv2.IMREAD_UNCHANGED).astype(np.float32) / 4.0
+    truth[truth == 0] = np.nan
+    calib = Calibration(fx=935.0, fy=935.0, cx=224.5, cy=187.0, baseline=0.16, width=450, height=375,
+                        cam_to_vehicle=camera_to_vehicle(1.0))  # fmt: skip
+    _, disp = _core().process(StereoFrame(frame_id=0, stamp_ns=0, left=left, right=right, calib=calib))
+    scores = d1_frame(disp.disparity, truth)
+    assert scores["d1_est_pct"] is not None and scores["d1_est_pct"] < max_d1_est, scores
+    assert scores["density_pct"] is not None and scores["density_pct"] > min_density, scores

@@ -43,6 +43,7 @@ class StereoDepth:
         self._matchers: dict[int, MultiResolutionMatcher] = {}
         self.last_degenerate = False
         self.last_timings_ms: dict[str, float] = {}
+        self._last_matcher: MultiResolutionMatcher | None = None
         MultiResolutionMatcher.for_range(stereo, round_up_16(stereo.num_disparities or 64))  # fail fast on bad config
 
     @classmethod
@@ -56,12 +57,21 @@ class StereoDepth:
         points, colors = self._timed("reproject", lambda: self.reprojector.points(disparity, frame.left, frame.calib))
         return self._messages(frame, points, colors, disparity)
 
+    def step_timings_ms(self) -> dict[str, float]:
+        """The last frame's milliseconds per step: sgbm_coarse, sgbm_fine, lr_check, fill, reproject, total."""
+        steps = dict(self._last_matcher.timings_ms) if self._last_matcher else {}
+        steps["reproject"] = self.last_timings_ms.get("reproject", 0.0)
+        steps["total"] = self.last_timings_ms.get("match", 0.0) + steps["reproject"]
+        return steps
+
     def _disparity(self, frame: StereoFrame) -> DisparityMap:
         """The left image's disparity; all NaN (and flagged) for a blank pair or one with no match at all."""
+        self._last_matcher = None
         if is_textureless(frame.left) or is_textureless(frame.right):
             self.last_degenerate = True
             return np.full(frame.left.shape[:2], np.nan, dtype=np.float32)
-        disparity = self._matcher(frame.calib).match(frame.left, frame.right)
+        self._last_matcher = self._matcher(frame.calib)
+        disparity = self._last_matcher.match(frame.left, frame.right)
         self.last_degenerate = not bool(np.isfinite(disparity).any())
         return disparity
 

@@ -11,13 +11,20 @@ KITTI raw 0009: same D1 as a full-resolution check, 40 % less time).
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
+from typing import TypeVar
+
 import cv2
 import numpy as np
 
 from common.config import StereoConfig
 from common.errors import ConfigError
 from services.stereo_depth.consistency import left_right_check, upsample, within_neighbours
+from services.stereo_depth.occlusion import fill_hidden
 from services.stereo_depth.sgbm import DisparityMap, Image, SgbmParams, SgbmPass, round_up_16
+
+T = TypeVar("T")
 
 LR_MODES: tuple[str, ...] = ("coarse", "full", "none")
 #: coarse pixels this close to the fine range's end are trusted over the fine pass.
@@ -35,6 +42,7 @@ class MultiResolutionMatcher:
         lr_max_diff_px: float,
         fill_support_px: int,
         color: bool,
+        hidden_fill: tuple[int, int] = (0, 0),
     ) -> None:
         if lr_check not in LR_MODES:
             raise ConfigError(f"stereo.lr_check {lr_check!r} unknown; allowed: {LR_MODES}")
@@ -46,6 +54,9 @@ class MultiResolutionMatcher:
         self.lr_max_diff_px = lr_max_diff_px
         self.fill_support_px = fill_support_px
         self.color = color
+        self.hidden_colour_step, self.hidden_max_px = hidden_fill
+        #: milliseconds of the last ``match`` per step: sgbm_coarse, sgbm_fine, lr_check, fill.
+        self.timings_ms: dict[str, float] = {}
 
     @classmethod
     def for_range(cls, cfg: StereoConfig, max_disparity: int) -> MultiResolutionMatcher:
@@ -71,13 +82,22 @@ class MultiResolutionMatcher:
 
         fine = SgbmPass(params(fine_range, cfg.uniqueness))
         coarse = SgbmPass(params(round_up_16(max_disparity / 2), cfg.coarse_uniqueness)) if need_coarse else None
-        return cls(fine, coarse, cfg.lr_check, cfg.lr_max_diff_px, cfg.fill_support_px, cfg.color_matching)
+        hidden = (cfg.hidden_fill_colour_step, cfg.hidden_fill_max_px)
+        return cls(fine, coarse, cfg.lr_check, cfg.lr_max_diff_px, cfg.fill_support_px, cfg.color_matching, hidden)
 
     def match(self, left_rgb: Image, right_rgb: Image) -> DisparityMap:
+        self.timings_ms = dict.fromkeys(("sgbm_coarse", "sgbm_fine", "lr_check", "fill"), 0.0)
         left, right = self._intensity(left_rgb), self._intensity(right_rgb)
         coarse_left, coarse_right = self._coarse(left, right)
         fine = self._fine(left, right, coarse_right)
-        return self._fuse(fine, coarse_left)
+        fused = self._timed("fill", lambda: self._fuse(fine, coarse_left))
+        return self._timed("fill", lambda: self._fill_hidden(fused, left_rgb))
+
+    def _timed(self, step: str, work: Callable[[], T]) -> T:
+        start = time.perf_counter()
+        result = work()
+        self.timings_ms[step] += (time.perf_counter() - start) * 1000.0
+        return result
 
     def _intensity(self, rgb: Image) -> Image:
         rgb = np.ascontiguousarray(rgb)  # OpenCV refuses views with strided columns
@@ -92,22 +112,24 @@ class MultiResolutionMatcher:
             size = (max(1, img.shape[1] // 2), max(1, img.shape[0] // 2))
             return cv2.resize(img, size, interpolation=cv2.INTER_AREA)
 
+        coarse = self.coarse
         small_left, small_right = half(left), half(right)
-        disp_left = self.coarse.left(small_left, small_right)
-        disp_right = self.coarse.right(small_left, small_right)
+        disp_left = self._timed("sgbm_coarse", lambda: coarse.left(small_left, small_right))
+        disp_right = self._timed("sgbm_coarse", lambda: coarse.right(small_left, small_right))
         if self.lr_check != "none":
-            disp_left = left_right_check(disp_left, disp_right, self.lr_max_diff_px)
+            disp_left = self._timed("lr_check", lambda: left_right_check(disp_left, disp_right, self.lr_max_diff_px))
         scale = left.shape[1] / small_left.shape[1]
         shape = (left.shape[0], left.shape[1])
-        return upsample(disp_left, shape, scale), upsample(disp_right, shape, scale)
+        return self._timed("lr_check", lambda: (upsample(disp_left, shape, scale), upsample(disp_right, shape, scale)))
 
     def _fine(self, left: Image, right: Image, coarse_right: DisparityMap | None) -> DisparityMap:
         """The full-resolution pass over the far range, checked against a right view."""
-        disp = self.fine.left(left, right)
+        disp = self._timed("sgbm_fine", lambda: self.fine.left(left, right))
         if self.lr_check == "full":
-            return left_right_check(disp, self.fine.right(left, right), self.lr_max_diff_px)
+            disp_right = self._timed("sgbm_fine", lambda: self.fine.right(left, right))
+            return self._timed("lr_check", lambda: left_right_check(disp, disp_right, self.lr_max_diff_px))
         if self.lr_check == "coarse" and coarse_right is not None:
-            return left_right_check(disp, coarse_right, 2.0 * self.lr_max_diff_px)
+            return self._timed("lr_check", lambda: left_right_check(disp, coarse_right, 2.0 * self.lr_max_diff_px))
         return disp
 
     def _fuse(self, fine: DisparityMap, coarse: DisparityMap | None) -> DisparityMap:
@@ -120,3 +142,9 @@ class MultiResolutionMatcher:
             holes = np.isnan(fused) & within_neighbours(coarse, fused, self.fill_support_px, self.lr_max_diff_px)
             fused = np.where(holes, coarse, fused)
         return fused.astype(np.float32, copy=False)
+
+    def _fill_hidden(self, disparity: DisparityMap, left_rgb: Image) -> DisparityMap:
+        """Holes the right camera cannot see, from the surface beside them (see ``occlusion.py``)."""
+        if self.hidden_max_px <= 0:
+            return disparity
+        return fill_hidden(disparity, left_rgb, self.hidden_colour_step, self.hidden_max_px)
