@@ -99,6 +99,7 @@ class OdometryConfig:
     subpixel_window: int = 11  # Lucas-Kanade refinement window (pixels)
     subpixel_stereo: bool = True  # LK-refine disparities too (off: integer disparities, 0.6 % less scale on KITTI)
     disparity_offset_px: float = 0.0  # added to every disparity: a rig's bias measured against lidar
+    disparity_edge_px: float = 0.0  # plus this times ((u - cx) / fx)^2: the part growing towards the sides
     usable_width: float = 1.0  # share of the image width, centred on cx, whose matches estimate motion
     ransac_iterations: int = 200
     ransac_threshold_px: float = 1.5
@@ -128,6 +129,8 @@ class VoxelConfig:
     terrain_max_grade: float = 0.15  # steepest road grade (and grade change per slice) followed
     join_share: float = 0.3  # clusters joined as parts of one object when this share of one links to the other
     bridge_voxels: int = 3  # a gap along the line of sight up to this many voxels still links two parts
+    points_range_m: float = 0.0  # beyond this range min_points_per_voxel falls with range squared (0 = fixed)
+    min_points_far: int = 2  # ... but never below this
 
 
 @dataclass
@@ -155,6 +158,7 @@ class TrackerConfig:
     noise_adaptation: float = 0.3  # weight of the newest normalised innovation in a track's noise scale (0 = off)
     appearance_smoothing: float = 0.5  # weight of the newest cluster in a track's colour/size/density
     frame_period_s: float = 0.1  # time step when stamps cannot give one
+    jump_nis: float = float("inf")  # squared Mahalanobis innovation (3 dof) over which a centroid re-anchors the track
 
 
 @dataclass

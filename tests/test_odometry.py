@@ -199,10 +199,13 @@ def test_rig_corrections_act_as_documented() -> None:
         return [odo.process(f) for f in frames][-1]
 
     plain, central, offset = run(), run(usable_width=0.4), run(disparity_offset_px=0.5)
-    forward = [m.delta[0, 3] for m in (plain, central, offset)]
+    edge = run(disparity_edge_px=2.0)
+    forward = [m.delta[0, 3] for m in (plain, central, offset, edge)]
     assert abs(forward[0] - 1.0) < 0.01 and abs(forward[1] - 1.0) < 0.02
     assert 0 < central.inliers < plain.inliers  # side columns left out
     assert forward[2] < 0.985  # a larger disparity means nearer points, so a shorter step
+    # the side term adds at most 2 * (0.6)^2 = 0.72 px at the image edge, nothing in the centre
+    assert forward[2] < forward[3] < forward[0] - 0.003
 
 
 def test_bad_inputs_raise_clear_errors_and_a_new_image_size_starts_a_new_world() -> None:
