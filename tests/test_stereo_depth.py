@@ -161,13 +161,20 @@ def test_decimation_keeps_every_nth_pixel() -> None:
     assert 0.2 * len(full.points) < len(sparse.points) < 0.3 * len(full.points)
 
 
-def test_full_resolution_left_right_check_also_works() -> None:
-    _, disp = _core(lr_check="full", fill_support_px=0).process(_scene())
-    box = disp.disparity[BOX]
+@pytest.mark.parametrize("lr_check", ["full", "coarse"])
+def test_left_right_check_removes_the_occlusion_and_the_hidden_fill_restores_the_background(lr_check: str) -> None:
+    _, checked = _core(lr_check=lr_check, fill_support_px=0, hidden_fill_max_px=0).process(_scene())
+    box = checked.disparity[BOX]
     assert np.nanmedian(box) == pytest.approx(FX * BASELINE / BOX_DEPTH, abs=0.3)
-    # the wall strip just left of the box in the left image is hidden from the right camera
-    occluded = disp.disparity[BOX[0], 140:150]
-    assert np.isnan(occluded).mean() > 0.8
+    # the wall strip just left of the box in the left image (columns 135-149) is hidden from the right camera
+    assert np.isnan(checked.disparity[BOX[0], 140:150]).mean() > 0.8
+    fill_everything = {"hidden_fill_colour_step": 255, "hidden_fill_max_px": 24}
+    _, filled = _core(lr_check=lr_check, fill_support_px=0, **fill_everything).process(_scene())
+    strip = filled.disparity[BOX[0], 137:150]  # the fill stops short of the box (tolerance, edge fattening)
+    assert np.isfinite(strip).mean() > 0.9
+    new = np.isnan(checked.disparity[BOX[0], 137:150]) & np.isfinite(strip)
+    error = np.abs(strip[new] - FX * BASELINE / PLANE_DEPTH)  # the wall's disparity, not the box's 48
+    assert new.sum() > 500 and np.median(error) < 0.5 and error.max() < 3.0  # as good as its anchor pixels
 
 
 @pytest.mark.parametrize(
@@ -251,9 +258,9 @@ def test_holes_geometry_does_not_explain_stay_empty() -> None:
 
 
 @pytest.mark.timeout(120)
-@pytest.mark.parametrize(("scene", "max_d1_est", "min_density"), [("cones", 3.8, 89.5), ("teddy", 4.0, 90.5)])
+@pytest.mark.parametrize(("scene", "max_d1_est", "min_density"), [("cones", 4.0, 89.8), ("teddy", 4.0, 90.5)])
 def test_middlebury_with_the_importers_calibration(scene: str, max_d1_est: float, min_density: float) -> None:
-    """Measured: cones 3.47 % D1-est / 90.1 % density, teddy 3.72 % / 91.2 % (issue 5: mean <= 3.8 % / >= 90 %)."""
+    """Measured: cones 3.62 % D1-est / 90.3 % density, teddy 3.73 % / 91.2 % (issue 5: mean <= 3.8 % / >= 90 %)."""
     folder = shared_path("data", "middlebury", scene)
     left, right = (cv2.cvtColor(cv2.imread(str(folder / n)), cv2.COLOR_BGR2RGB) for n in ("im2.png", "im6.png"))
     truth = cv2.imread(str(folder / "disp2.png"), cv2.IMREAD_UNCHANGED).astype(np.float32) / 4.0
