@@ -170,6 +170,27 @@ def test_black_frame_is_invalid_then_recovers() -> None:
     assert {o.world_epoch for o in outs} == {0}
 
 
+def _dusk(img: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The corridor at dusk: a sixth of the contrast, a dark floor and sensor noise."""
+    grey = img.astype(np.float32) * 0.15 + 8.0 + rng.normal(0.0, 1.5, img.shape[:2])[..., None]
+    return np.clip(grey, 0, 255).astype(np.uint8)
+
+
+@pytest.mark.timeout(60)
+def test_a_dark_noisy_start_still_finds_the_motion() -> None:
+    """Too few strong corners for the coarse bootstrap: the wide search falls back to all of them."""
+    rng = np.random.default_rng(3)
+    odo = StereoOdometry.from_config(Config())
+    step = cam_motion(0.5, (0.0, 0.0, 0.8))
+    outs = []
+    for i in range(3):
+        lit = frame(i, np.linalg.matrix_power(step, i))
+        outs.append(odo.process(dataclasses.replace(lit, left=_dusk(lit.left, rng), right=_dusk(lit.right, rng))))
+    for out in outs[1:]:
+        assert out.valid and out.inliers >= Config().odometry.min_inliers
+        assert errors(out.delta, vehicle_pose(step))[0] < 0.03
+
+
 @pytest.mark.timeout(60)
 def test_long_loss_reanchors_the_world() -> None:
     cfg = Config()

@@ -145,8 +145,8 @@ class StereoOdometry:
             if estimate is not None:
                 return estimate
         coarse = self.estimate(self.thinned(previous), self.thinned(current), rig, np.eye(4), self.cfg.match_radius_px)
-        if coarse is None:
-            return None
+        if coarse is None:  # a dark or bland frame: too few strong corners, so search with all of them
+            return self.estimate(previous, current, rig, np.eye(4), self.cfg.match_radius_px)
         return self.estimate(previous, current, rig, coarse.motion, self.cfg.predicted_radius_px)
 
     def thinned(self, view: StereoView) -> StereoView:
