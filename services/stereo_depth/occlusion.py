@@ -31,38 +31,58 @@ TOLERANCE_PX: float = 1.0
 #: disparity step between the two sides of a hole that makes it an occlusion.
 MIN_STEP_PX: float = 1.0
 
+Index = npt.NDArray[np.intp]
+
 
 def fill_hidden(disparity: DisparityMap, image: Image, colour_step: int, max_px: int) -> DisparityMap:
     """Disparity with the geometrically hidden holes filled (a new array); ``image`` is the left view.
 
-    Row scans run over the whole image, the tests only over its holes (a tenth of the pixels).
+    Works on the runs of holes along rows and expands only the ``max_px`` pixels of each run
+    next to the anchor that would fill them, so the cost follows the holes, not the image.
     """
     width = disparity.shape[1]
-    valid = np.isfinite(disparity)
-    cols = np.arange(width, dtype=np.int32)[None, :]
-    before = np.maximum.accumulate(np.where(valid, cols, np.int32(-1)), axis=1)  # last valid column <= x
-    after = np.minimum.accumulate(np.where(valid, cols, np.int32(width))[:, ::-1], axis=1)[:, ::-1]
-    rows, hole_cols = np.nonzero(~valid)
-    left_of, right_of = before[rows, hole_cols], after[rows, hole_cols]
+    rows, first, stop = _hole_runs(disparity)  # row, first hole column, first column after the run
+    flat = disparity.ravel()
     base = rows * width
-    flat, surface = disparity.ravel(), _surfaces(image, colour_step).ravel()
-    d_before = flat[base + np.maximum(left_of, 0)]
-    d_after = flat[base + np.minimum(right_of, width - 1)]
-    same_before = surface[base + hole_cols] == surface[base + np.maximum(left_of, 0)]
-    same_after = surface[base + hole_cols] == surface[base + np.minimum(right_of, width - 1)]
-    inside = right_of < width
-    unseen = (
-        inside & (left_of < 0) & (hole_cols - d_after < TOLERANCE_PX) & (right_of - hole_cols <= max_px) & same_after
-    )
-    occluded = (
-        inside & (left_of >= 0) & (d_after >= d_before + MIN_STEP_PX)
-        & (hole_cols - d_before >= right_of - d_after - TOLERANCE_PX)  # its match falls behind the foreground
-        & (hole_cols - left_of <= max_px) & same_before
-    )  # fmt: skip
+    d_before = flat[base + np.maximum(first - 1, 0)]  # the left anchor (meaningless where first == 0)
+    d_after = flat[base + np.minimum(stop, width - 1)]  # the right anchor (meaningless where stop == width)
+    reach = np.minimum(stop - first, max_px)
+    surface = _surfaces(image, colour_step).ravel()
     filled = disparity.copy()
-    filled[rows[unseen], hole_cols[unseen]] = d_after[unseen]
-    filled[rows[occluded], hole_cols[occluded]] = d_before[occluded]
+    out = filled.ravel()
+
+    # left border: the pixels left of the right anchor whose match, at its disparity, is off the image
+    run, cols = _expand(np.flatnonzero((first == 0) & (stop < width)), stop - reach, stop)
+    anchor = base[run] + stop[run]
+    keep = (cols - d_after[run] < TOLERANCE_PX) & (surface[base[run] + cols] == surface[anchor])
+    out[base[run][keep] + cols[keep]] = d_after[run][keep]
+
+    # occlusions: the pixels right of the background anchor whose match falls behind the foreground
+    step_up = (first > 0) & (stop < width) & (d_after >= d_before + MIN_STEP_PX)
+    run, cols = _expand(np.flatnonzero(step_up), first, first + reach)
+    anchor = base[run] + first[run] - 1
+    foreground_at = stop[run] - d_after[run]  # where the right image shows the foreground's edge
+    keep = (cols - d_before[run] >= foreground_at - TOLERANCE_PX) & (surface[base[run] + cols] == surface[anchor])
+    out[base[run][keep] + cols[keep]] = d_before[run][keep]
     return filled
+
+
+def _hole_runs(disparity: DisparityMap) -> tuple[Index, Index, Index]:
+    """Row, first column and end column (exclusive) of every run of NaN along the rows."""
+    height, width = disparity.shape
+    padded = np.zeros((height, width + 2), np.int8)
+    padded[:, 1:-1] = np.isnan(disparity)
+    changes = np.flatnonzero(np.diff(padded, axis=1))  # within each row: start, end, start, end ...
+    starts, ends = changes[0::2], changes[1::2]
+    return starts // (width + 1), starts % (width + 1), ends % (width + 1)
+
+
+def _expand(runs: Index, lo: Index, hi: Index) -> tuple[Index, Index]:
+    """Every column in ``[lo, hi)`` of the chosen runs, with the run each belongs to."""
+    lengths = (hi - lo)[runs]
+    run = np.repeat(runs, lengths)
+    offsets = np.arange(len(run)) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    return run, lo[run] + offsets
 
 
 def _surfaces(image: Image, colour_step: int) -> npt.NDArray[np.int32]:
