@@ -193,9 +193,12 @@ def test_left_right_check_removes_the_occlusion_and_the_hidden_fill_restores_the
 )
 def test_bad_input_raises_a_clear_error(change: dict[str, object], error: type[Exception]) -> None:
     frame = dataclasses.replace(_scene(), **change)
+    core = _core()
     with pytest.raises(error) as info:
-        _core().process(frame)
+        core.process(frame)
     assert len(str(info.value)) > 20
+    cloud, _ = core.process(_scene())  # the same core serves the next frame
+    assert not core.last_degenerate and len(cloud.points) > 1000
 
 
 @pytest.mark.parametrize(("value", "noise"), [(0, 0.0), (255, 0.0), (5, 2.0)])
