@@ -21,10 +21,11 @@ from types import FrameType
 
 from common.bus import QUEUE_POLICIES, open_session
 from common.config import Config, load_config
+from services.shell import run_stage
 
 log = logging.getLogger(__name__)
 
-#: stage name -> module exposing ``run(cfg, session, stop, policy)``.
+#: stage name -> module exposing ``stage(cfg) -> Stage`` (the core wired to its keys).
 SERVICES: dict[str, str] = {
     "stereo_depth": "services.stereo_depth.service",
     "odometry": "services.odometry.service",
@@ -87,5 +88,5 @@ def run(args: argparse.Namespace) -> int:
         listen = cfg.bus.listen or ("-" if cfg.bus.mode == "client" else "an ephemeral loopback port")
         log.info("%s: joined the bus as %s (listen %s, connect %s)", args.service, cfg.bus.mode, listen,
                  cfg.bus.connect or "-")
-        module.run(cfg, session, stop, policy=args.policy, max_frames=args.max_frames)
+        run_stage(module.stage(cfg), cfg, session, stop, args.policy, max_frames=args.max_frames)
     return 0

@@ -259,7 +259,7 @@ def stereo_frame(k: int, width: int = 320, height: int = 240) -> StereoFrame:
 def test_four_stage_processes_answer_every_frame_in_lockstep_with_the_whole_trail(
     router: tuple[zenoh.Session, int], processes: Processes
 ) -> None:
-    """Frame 1 is blank (degenerate), frame 2 has a broken calibration (stereo_depth raises): both answered."""
+    """Frame 1 is blank (degenerate), frame 2 is too small to match (stereo_depth raises): both answered."""
     session, port = router
     stages = ("stereo_depth", "odometry", "voxel_mapper", "tracker")
     alive = alive_set(session)
@@ -275,7 +275,10 @@ def test_four_stage_processes_answer_every_frame_in_lockstep_with_the_whole_trai
     camera = Publisher(session, key_for("camera/stereo"))
     frames = [stereo_frame(k) for k in range(5)]
     frames[1] = dataclasses.replace(frames[1], left=np.zeros_like(frames[1].left), right=np.zeros_like(frames[1].left))
-    frames[2] = dataclasses.replace(frames[2], calib=dataclasses.replace(frames[2].calib, baseline=0.0))
+    # well-formed (decode accepts it) but too small to match: stereo_depth raises on it
+    tiny = dataclasses.replace(frames[2].calib, width=4, height=4)
+    frames[2] = dataclasses.replace(frames[2], left=frames[2].left[:4, :4].copy(), right=frames[2].right[:4, :4].copy(),
+                                    calib=tiny)
     results: list[Obstacles] = []
     for frame in frames:  # lockstep, as camera_replay does: frame k+1 once frame k's obstacles are out
         camera.put(frame)
@@ -292,7 +295,7 @@ def test_four_stage_processes_answer_every_frame_in_lockstep_with_the_whole_trai
     assert cloud_sizes[0] > 0 and cloud_sizes[1] == 0 and cloud_sizes[2] == 0, cloud_sizes  # blank; empty output
     reports = {s: last_health(health[s], lambda h: h.frames_out == 5, f"{s}'s Health to count five frames")
                for s in stages}
-    assert reports["stereo_depth"].errors == 1 and "baseline" in reports["stereo_depth"].detail["last_error"]
+    assert reports["stereo_depth"].errors == 1 and "at least 8 px" in reports["stereo_depth"].detail["last_error"]
     assert reports["stereo_depth"].detail["degenerate"] >= 1
     assert reports["voxel_mapper"].errors == 0 and reports["tracker"].errors == 0
     assert all(r.dropped == 0 and r.decode_errors == 0 and r.p50_ms > 0 for r in reports.values()), reports

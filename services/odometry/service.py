@@ -13,16 +13,14 @@ an untrusted frame rather than a jump to the world origin.
 
 from __future__ import annotations
 
-import threading
 import time
 
 import numpy as np
-import zenoh
 
 from common.config import Config
 from common.messages import EgoMotion, StereoFrame
 from services.odometry import StereoOdometry
-from services.shell import Stage, run_stage
+from services.shell import Stage
 
 NAME = "odometry"
 
@@ -61,8 +59,3 @@ def stage(cfg: Config, initial_epoch: int | None = None) -> Stage:
         degenerate=lambda: not last.valid,
     )
 
-
-def run(
-    cfg: Config, session: zenoh.Session, stop: threading.Event, policy: str = "newest", max_frames: int = 0
-) -> None:
-    run_stage(stage(cfg), cfg, session, stop, policy, max_frames=max_frames)

@@ -7,14 +7,11 @@ instead of waiting for a frame that never comes.
 
 from __future__ import annotations
 
-import threading
-
 import numpy as np
-import zenoh
 
 from common.config import Config
 from common.messages import Disparity, Message, PointCloud, StereoFrame
-from services.shell import Stage, run_stage
+from services.shell import Stage
 from services.stereo_depth import StereoDepth
 
 NAME = "stereo_depth"
@@ -52,8 +49,3 @@ def stage(cfg: Config) -> Stage:
         degenerate=lambda: core.last_degenerate,
     )
 
-
-def run(
-    cfg: Config, session: zenoh.Session, stop: threading.Event, policy: str = "newest", max_frames: int = 0
-) -> None:
-    run_stage(stage(cfg), cfg, session, stop, policy, max_frames=max_frames)

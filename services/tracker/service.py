@@ -7,14 +7,11 @@ the frame's ego pose and epoch, so that wait always ends.
 
 from __future__ import annotations
 
-import threading
-
 import numpy as np
-import zenoh
 
 from common.config import Config
 from common.messages import Clusters, EgoMotion, Obstacles
-from services.shell import Stage, run_stage
+from services.shell import Stage
 from services.tracker import Tracker
 
 NAME = "tracker"
@@ -46,8 +43,3 @@ def stage(cfg: Config) -> Stage:
         counters=lambda: dict(getattr(core, "counters", {})),
     )
 
-
-def run(
-    cfg: Config, session: zenoh.Session, stop: threading.Event, policy: str = "newest", max_frames: int = 0
-) -> None:
-    run_stage(stage(cfg), cfg, session, stop, policy, max_frames=max_frames)

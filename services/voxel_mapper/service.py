@@ -7,14 +7,11 @@ nothing was seen) and the lockstep replay gets its obstacles for that frame.
 
 from __future__ import annotations
 
-import threading
-
 import numpy as np
-import zenoh
 
 from common.config import Config
 from common.messages import Clusters, EgoMotion, PointCloud
-from services.shell import Stage, run_stage
+from services.shell import Stage
 from services.voxel_mapper import VoxelMapper
 
 NAME = "voxel_mapper"
@@ -46,8 +43,3 @@ def stage(cfg: Config) -> Stage:
         counters=lambda: dict(getattr(core, "counters", {})),
     )
 
-
-def run(
-    cfg: Config, session: zenoh.Session, stop: threading.Event, policy: str = "newest", max_frames: int = 0
-) -> None:
-    run_stage(stage(cfg), cfg, session, stop, policy, max_frames=max_frames)
