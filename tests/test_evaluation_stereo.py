@@ -1,11 +1,17 @@
-"""D1 on hand-made disparity pairs, including KITTI's background interpolation."""
+"""D1 on hand-made disparity pairs, including KITTI's background interpolation, and the SGBM anchor reproduced."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
+import cv2
 import numpy as np
 import pytest
+from conftest import shared_path
 
+from common.datasets import kitti_raw, middlebury
 from common.evaluation.stereo import d1_frame, interpolate_background
+from common.recording import open_recording
 
 N = np.nan
 
@@ -53,3 +59,38 @@ def test_empty_estimate_and_empty_truth() -> None:
     result = d1_frame(empty, truth)
     assert result == {"d1_all_pct": 100.0, "d1_est_pct": None, "density_pct": 0.0}
     assert d1_frame(truth, empty) == {"d1_all_pct": None, "d1_est_pct": None, "density_pct": None}
+
+
+# ----------------------------------------------------------------------------- the anchor, reproduced
+
+ANCHOR_SGBM = {"blockSize": 3, "P1": 216, "P2": 864, "uniquenessRatio": 10, "speckleWindowSize": 100,
+               "speckleRange": 2, "disp12MaxDiff": 1, "preFilterCap": 63}
+
+
+def _sgbm_scores(recording: Path, disparities: int) -> dict[str, float]:
+    """../shared/anchors' OpenCV SGBM (3-way, common settings) scored by this metric, mean over truth frames."""
+    reader = open_recording(recording)
+    frames, truths = reader.by_topic("camera/stereo"), reader.by_topic("groundtruth/disparity")
+    scores = []
+    for frame_id, truth in sorted(truths.items()):
+        sgbm = cv2.StereoSGBM.create(minDisparity=0, numDisparities=disparities, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
+                                     **ANCHOR_SGBM)
+        frame = frames[frame_id]
+        est = sgbm.compute(frame.left, frame.right).astype(np.float32) / 16.0
+        est[est < 0] = np.nan  # SGBM's invalid is -1
+        scores.append(d1_frame(est, truth.disparity))
+    return {k: float(np.mean([s[k] for s in scores])) for k in scores[0]}
+
+
+@pytest.mark.timeout(240)
+def test_metric_reproduces_the_sgbm_anchor_on_middlebury_and_kitti(tmp_path: Path) -> None:
+    """EVALUATION.md's calibration check: the same SGBM on the same frames gives the anchors' figures."""
+    mb = tmp_path / "mb.mcap"
+    middlebury.import_scenes(shared_path("data", "middlebury"), mb)
+    got = _sgbm_scores(mb, 64)
+    assert got == pytest.approx({"d1_all_pct": 10.3, "d1_est_pct": 3.8, "density_pct": 81.0}, abs=0.6), got
+    raw = tmp_path / "raw.mcap"
+    kitti_raw.import_drive(shared_path("data", "kitti_raw", "2011_09_26", "2011_09_26_drive_0009_sync"), raw,
+                           max_frames=51)
+    got = _sgbm_scores(raw, 128)
+    assert got == pytest.approx({"d1_all_pct": 16.9, "d1_est_pct": 8.9, "density_pct": 78.0}, abs=0.6), got
