@@ -166,6 +166,8 @@ def render_recording(run: Path, out: Path, frames: tuple[int, int] = (0, sys.max
                 del pending[min(pending)]
     finally:
         renderer.close()
+    if reader.truncated is not None:
+        print(f"render: {reader.truncated}; rendered the readable part", file=sys.stderr)
     return renderer
 
 

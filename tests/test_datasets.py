@@ -58,8 +58,10 @@ def test_raw_import_frames_pose_lidar_and_info(tmp_path: Path) -> None:
     assert 0.9 < msgs[GroundTruthEgo][2].pose[0, 3] < 2.5  # ~10.5 m/s forward over 0.2 s
     assert sorted(msgs[GroundTruthDisparity]) == [0]  # scans exist for frames 0, 25, 50
     assert msgs[GroundTruthDisparity][0].sparse
-    info = open_recording(out).info()
+    reader = open_recording(out)
+    info = reader.info()
     assert info["source"] == "kitti-raw" and info["gt_complete"] is False and info["frames"] == 3
+    assert reader.config_dict() is not None and "voxel" in reader.config_dict()  # the effective configuration
     assert info["volume"] == {"x_min": 0.0, "x_max": 45.0, "y_half": 10.0, "z_min": 0.0, "z_max": 3.5}
     assert np.allclose(info["calib"]["cam_to_vehicle"], [[0, 0, 1, 0], [-1, 0, 0, 0], [0, -1, 0, 1.65], [0, 0, 0, 1]])
     stamps = [msgs[StereoFrame][k].stamp_ns for k in range(3)]

@@ -118,3 +118,16 @@ def test_a_run_without_camera_frames_renders_nothing_and_says_so(tmp_path: Path)
     assert proc.returncode == 1
     assert "no frame" in proc.stderr and "camera image" in proc.stderr
     assert not list((tmp_path / "out").glob("*.png"))
+
+
+@pytest.mark.timeout(60)
+def test_a_truncated_run_renders_its_readable_part_and_says_where_it_ends(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    whole = write_run(tmp_path / "run.mcap", frames=8).read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(whole[: int(len(whole) * 0.7)])  # a recorder killed mid-write
+    renderer = render_recording(cut, tmp_path / "out")
+    assert 0 < len(renderer.written) < 8
+    err = capsys.readouterr().err
+    assert str(cut) in err and "ends early" in err and "readable part" in err

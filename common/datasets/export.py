@@ -12,7 +12,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from common.config import VolumeConfig
+from common.config import Config, VolumeConfig
 from common.datasets.kitti_calib import calibration_info
 from common.messages import TOPICS, Calibration, Message, key_for
 from common.progress import progress
@@ -39,7 +39,7 @@ def write_frames(out: Path, info: dict[str, Any], frames: Iterable[list[Message]
     """Write every frame's messages under their keys; returns the number of frames written."""
     written = 0
     with RecordingWriter(out, atomic=True) as writer:
-        writer.describe(None, info)
+        writer.describe(Config().to_dict(), info)  # the defaults a `process` of this file starts from
         for messages in progress(frames, int(info["frames"]), description):
             for msg in messages:
                 writer.write(key_for(TOPIC_OF[type(msg)]), msg, log_time_ns=msg.stamp_ns)
