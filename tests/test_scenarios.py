@@ -176,3 +176,13 @@ def test_ego_never_drives_through_an_object(name: str) -> None:
                 continue
             box = _footprint(st.pose[:2, 3], st.pose[:2, :2], st.thing.size[0], st.thing.size[1])
             assert not _overlap(ego_box, box), f"frame {k}: ego overlaps {st.thing.cls} {st.thing.id}"
+
+
+def test_bundled_recording_is_the_documented_one() -> None:
+    """recordings/README.md: 64 urban frames, seed 1, under the 15 MB the repository allows."""
+    path = Path(__file__).resolve().parents[1] / "recordings" / "urban.mcap"
+    assert path.stat().st_size < 15e6
+    reader = open_recording(path)
+    info = reader.info()
+    assert (info["scenario"], info["seed"], info["frames"], info["gt_complete"]) == ("urban", 1, 64, True)
+    assert sorted(reader.by_topic("groundtruth/ego")) == list(range(64))
