@@ -227,7 +227,8 @@ def test_bad_configuration_is_refused_at_construction(setting: dict[str, object]
 def test_search_range_follows_the_calibration() -> None:
     core = _core()
     assert core.search_range(_calib()) == 64  # 300 px * 0.4 m / 2 m = 60 -> 64
-    assert core.search_range(_calib(fx=721.5, width=1242, height=375)) == 160
+    assert core.search_range(_calib(fx=721.5, width=1242, height=375)) == 144  # 144.3 px: one may be given up
+    assert core.search_range(_calib(fx=721.5, baseline=0.54, width=1242, height=375)) == 208  # 194.8 px
     assert _core(num_disparities=100).search_range(_calib()) == 112
 
 

@@ -27,6 +27,8 @@ T = TypeVar("T")
 
 #: matchers kept for different search ranges (one per rig in practice).
 MAX_MATCHERS: int = 4
+#: pixels of the reach to ``min_depth_m`` that may be given up to save a block of 16 disparities.
+REACH_SLACK_PX: float = 1.0
 
 
 class StereoDepth:
@@ -76,10 +78,15 @@ class StereoDepth:
         return disparity
 
     def search_range(self, calib: Calibration) -> int:
-        """Full-resolution disparities to search: down to ``min_depth_m`` unless fixed in config."""
+        """Full-resolution disparities to search: down to ``min_depth_m`` unless fixed in config.
+
+        The reach is rounded up to SGBM's multiple of 16 after giving up one pixel of it: KITTI's
+        192.2 px would otherwise cost a 208-disparity search (and 112 instead of 96 at half
+        resolution) for 0.5 % of depth at 2 m.
+        """
         if self.cfg.num_disparities:
             return round_up_16(self.cfg.num_disparities)
-        reach = calib.fx * calib.baseline / self.cfg.min_depth_m
+        reach = calib.fx * calib.baseline / self.cfg.min_depth_m - REACH_SLACK_PX
         return round_up_16(min(reach, calib.width))
 
     def _matcher(self, calib: Calibration) -> MultiResolutionMatcher:
