@@ -48,6 +48,7 @@ class BenchResult:
     shared_memory: bool
     payload_bytes: int
     latency_p50_ms: float
+    latency_p95_ms: float
     latency_p99_ms: float
     latency_max_ms: float
     frames_per_s: float
@@ -145,10 +146,11 @@ def measure(
         raise BusError(f"bus_bench received {len(arrivals)} of {frames} frames (sender exit {sender.returncode})")
     lat = np.array(latencies)
     span_s = (arrivals[-1] - arrivals[0]) / 1e9
+    p50, p95, p99 = (round(float(np.percentile(lat, q)), 3) for q in (50, 95, 99))
     return BenchResult(
         frames_sent=frames, frames_received=len(arrivals), rate_hz=rate_hz, image_format=image_format,
-        shared_memory=shared_memory, payload_bytes=size, latency_p50_ms=round(float(np.percentile(lat, 50)), 3),
-        latency_p99_ms=round(float(np.percentile(lat, 99)), 3), latency_max_ms=round(float(lat.max()), 3),
+        shared_memory=shared_memory, payload_bytes=size, latency_p50_ms=p50, latency_p95_ms=p95,
+        latency_p99_ms=p99, latency_max_ms=round(float(lat.max()), 3),
         frames_per_s=round((len(arrivals) - 1) / span_s, 1) if span_s > 0 else 0.0,
         topology="router" if router else "peer",
     )

@@ -9,7 +9,9 @@ through BLOCK publishers onto every stage; ``"block"`` makes the recorder lossle
 evaluation runs, at the price of slowing the publishers to the disk's pace.
 
 The open chunk is flushed every ``recorder.flush_interval_s``, so SIGKILL loses at most that
-chunk; SIGINT/SIGTERM drain the queue and write the summary. An unwritable path or a full disk
+chunk; SIGINT/SIGTERM drain the queue and write the summary. Restarted by ``launch`` after a
+crash, the recorder continues in ``STEM.restartN.mcap`` beside ``--out`` rather than truncating
+the file it was killed writing. An unwritable path or a full disk
 stops the recording with an error naming the file; the pipeline, which never waits for the
 recorder in ``drop`` mode, runs on.
 """
@@ -19,6 +21,7 @@ from __future__ import annotations
 import argparse
 import collections
 import logging
+import os
 import threading
 import time
 from dataclasses import dataclass
@@ -35,6 +38,7 @@ from common.messages import Health, key_for, topic_of
 from common.recording import COMPRESSIONS, RecordingWriter, open_recording, peek_stamp
 from services.recording_parts import RecordingParts
 from services.service_args import add_bus_arguments, config_from_args, stop_on_signals
+from services.supervisor import RESTARTS_ENV
 
 log = logging.getLogger(__name__)
 
@@ -282,5 +286,15 @@ def run(args: argparse.Namespace) -> int:
     info = open_recording(args.info_from).info() if args.info_from else None
     stop = stop_on_signals()
     with open_session(cfg.bus) as session:
-        run_recorder(cfg, session, stop, args.out, info=info)
+        run_recorder(cfg, session, stop, restarted_path(args.out, os.environ.get(RESTARTS_ENV, "")), info=info)
     return 0
+
+
+def restarted_path(out: Path, restarts: str) -> Path:
+    """``run.mcap`` for the first start, ``run.restart1.mcap`` ... after restarts by ``launch``.
+
+    The file of a killed recorder is complete up to its last flushed chunk; opening the same
+    name again would truncate it, so each restart records into a file of its own beside it.
+    """
+    count = int(restarts) if restarts.isdigit() else 0
+    return out.with_name(f"{out.stem}.restart{count}{out.suffix}") if count else out

@@ -5,7 +5,9 @@ restarted with exponential backoff (its restart policy permitting), reset once i
 The router (when this host runs it) starts first and the others wait for its port; sources
 start last, once every non-source service of the whole spec (every host) has its liveliness
 token up, so a camera on one computer never sends into a graph whose other half is still booting.
-A liveliness watcher also times each restart: from the crash to the new token.
+A liveliness watcher also times each restart: from the crash to the new token. Each child
+finds in ``STEREOVOX_RESTARTS`` how often it was restarted before, so a restarted recorder
+continues in a new file instead of truncating the one its predecessor wrote.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ ROUTER = "router"
 BACKOFF_START_S = 0.1  # the first restart almost at once; a crash loop backs off to 8 s
 BACKOFF_MAX_S = 8.0
 STABLE_AFTER_S = 20.0  # a service up this long gets its backoff reset
+RESTARTS_ENV = "STEREOVOX_RESTARTS"  # how often this child was restarted before, for the child itself
 
 
 @dataclass
@@ -92,9 +95,10 @@ class Supervisor:
         self._watch: zenoh.Subscriber | None = None
 
     def _spawn(self, child: Child) -> None:
+        env = {**self.env, RESTARTS_ENV: str(child.restarts)}  # a restarted recorder must not overwrite its file
         with open(child.log_path, "ab") as logf:
             child.proc = subprocess.Popen(
-                child.argv, stdout=logf, stderr=subprocess.STDOUT, env=self.env, start_new_session=True
+                child.argv, stdout=logf, stderr=subprocess.STDOUT, env=env, start_new_session=True
             )
         child.started_at = time.monotonic()
         child.next_start = None
@@ -212,7 +216,7 @@ class Supervisor:
         return int(proc.returncode)
 
     def stop(self, timeout_s: float = 15.0) -> None:
-        """Stop everything: sources first (nothing new enters), then the stages, the router last."""
+        """Stop everything: sources first (nothing new enters), then the stages, then sinks, the router last."""
         if self._watch is not None:
             with contextlib.suppress(Exception):
                 self._watch.undeclare()
@@ -221,13 +225,15 @@ class Supervisor:
             with contextlib.suppress(Exception):
                 self._session.close()
             self._session = None
-        order = sorted(self.children, key=lambda n: (n == ROUTER, n not in self.sources))
-        for name in order:
+        sinks = {s.name for s in self.spec.on_host(self.host) if not s.outputs and not s.source}
+        order = sorted(self.children, key=lambda n: (n == ROUTER, n in sinks, n not in self.sources))
+        first = [n for n in order if n != ROUTER and n not in sinks]
+        for name in first:
             proc = self.children[name].proc
-            if proc is not None and name != ROUTER:
+            if proc is not None:
                 _signal_group(proc, signal.SIGINT)
-        for name in order:
-            self.stop_child(name, sig=signal.SIGINT if name == ROUTER else None, timeout_s=timeout_s)
+        for name in order:  # sinks (the recorder) only once the others ended: their last outputs are kept
+            self.stop_child(name, sig=None if name in first else signal.SIGINT, timeout_s=timeout_s)
 
     def status(self) -> str:
         """One line: every child's state, pid, restarts and last exit code."""
