@@ -10,9 +10,10 @@ import pytest
 from common.config import Config
 from common.errors import ConfigError, InputError
 from common.geometry import make_pose, rot_z
-from common.messages import Clusters, EgoMotion, PointCloud, decode, encode
+from common.messages import Clusters, EgoMotion, GroundTruthObject, GroundTruthObjects, PointCloud, decode, encode
 from services.voxel_mapper import VoxelMapper
 from services.voxel_mapper.colour import hsl_of
+from services.voxel_mapper.overhang import Overhang, frame_rows, overhangs
 
 RED, BLUE, GREY, GREEN, GLASS = (200, 40, 30), (30, 50, 190), (110, 110, 105), (40, 190, 60), (60, 70, 90)
 
@@ -229,3 +230,48 @@ def test_empty_and_malformed_clouds() -> None:
     cfg.voxel.ground = "hilly"
     with pytest.raises(ConfigError, match="flat' or 'terrain"):
         VoxelMapper.from_config(cfg)
+
+
+def panel(x: float, per_voxel: int) -> tuple[np.ndarray, np.ndarray]:
+    """A 2 x 1.25 m panel facing the camera at ``x`` with exactly ``per_voxel`` points in each 0.25 m cell."""
+    rng = np.random.default_rng(8)
+    cells = np.array([(j, k) for j in range(-4, 4) for k in range(1, 6)], dtype=float) * 0.25
+    yz = (cells[:, None, :] + rng.uniform(0.02, 0.23, (len(cells), per_voxel, 2))).reshape(-1, 2)
+    pts = np.column_stack([np.full(len(yz), x), yz]).astype(np.float32)
+    return pts, noisy_colour(RED, len(pts))
+
+
+def test_far_sparse_surface_needs_the_range_scaled_point_threshold() -> None:
+    """5 points per voxel: below the fixed 8, above 8 * (15 / 23.1)^2 = 3.4 at 23 m, not above 8 at 9 m."""
+    far, near = panel(23.1, 5), panel(9.1, 5)
+    assert mapper(min_points_per_voxel=8).process(cloud(road(), far), ego()).clusters == []
+    out = mapper(min_points_per_voxel=8, points_range_m=15.0).process(cloud(road(), far), ego())
+    assert len(out.clusters) == 1 and out.clusters[0].voxel_count == 40
+    assert mapper(min_points_per_voxel=8, points_range_m=15.0).process(cloud(road(), near), ego()).clusters == []
+
+
+def gantry_truth() -> tuple[GroundTruthObjects, dict[int, Overhang]]:
+    obj = GroundTruthObject(id=1, cls="barrier", center=np.array([15.0, 0.0, 1.6]), size=np.array([0.3, 6.25, 3.2]),
+                            yaw=0.0, velocity=np.zeros(3), moving=False, visible_pixels=5000, visible_fraction=1.0)
+    posts = np.array([[-0.125, 0.125, -3.125, -2.875], [-0.125, 0.125, 2.875, 3.125]])
+    shape = Overhang(underside=2.8, top=3.2, over=np.array([[-0.15, 0.15, -3.0, 3.0]]), posts=posts)
+    return GroundTruthObjects(frame_id=0, stamp_ns=0, objects=[obj]), {1: shape}
+
+
+def test_overhang_measure_sees_the_span_and_what_is_beneath() -> None:
+    colour = (220, 170, 30)
+    posts = [box((14.875, side - 0.125, 0), (15.125, side + 0.125, 3.2), colour) for side in (-3.0, 3.0)]
+    parts = [*posts, box((14.85, -3.0, 2.8), (15.15, 3.0, 3.2), colour, seed=3)]
+    truth, shapes = gantry_truth()
+    volume = Config().volume
+    rows = frame_rows(mapper().process(cloud(road(), *parts), ego()), truth, np.eye(4), shapes, volume)
+    assert len(rows) == 1 and rows[0]["spans"] and rows[0]["voxels_below"] == 0
+    assert rows[0]["underside"] == pytest.approx(2.75, abs=0.01)  # the beam's cells over the lane
+    under = box((14.5, -0.5, 0), (15.5, 0.5, 1.5), BLUE)  # something under the beam that no ground truth lists
+    rows = frame_rows(mapper().process(cloud(road(), *parts, under), ego()), truth, np.eye(4), shapes, volume)
+    assert rows[0]["spans"] and rows[0]["voxels_below"] > 0
+
+
+def test_overhangs_of_the_hanging_scenario_are_the_sign_and_the_gantry() -> None:
+    shapes = overhangs("hanging", 1, 3.5)
+    assert sorted((round(s.underside, 2), round(s.top, 2)) for s in shapes.values()) == [(2.4, 3.5), (2.8, 3.2)]

@@ -44,7 +44,7 @@ class VoxelMapper:
     def __init__(self, *, edge: float, volume: VolumeConfig, ground: Ground, epsilon: float,
                  min_cluster_voxels: int, min_density: float, min_points_per_voxel: int = 1,
                  keep_frames: int = 0, ground_clearance: float = 0.2, join_share: float = 0.3,
-                 bridge_voxels: int = 3) -> None:
+                 bridge_voxels: int = 3, points_range_m: float = 0.0, min_points_far: int = 2) -> None:
         if edge <= 0.0:
             raise ConfigError(f"voxel.edge must be > 0, got {edge}")
         self.map = VoxelMap(edge, keep_frames)
@@ -57,6 +57,8 @@ class VoxelMapper:
         self.clearance = ground_clearance
         self.join_share = join_share
         self.bridge_voxels = bridge_voxels
+        self.points_range = points_range_m
+        self.min_points_far = min_points_far
         self.epoch: int | None = None
 
     @classmethod
@@ -72,7 +74,8 @@ class VoxelMapper:
         return cls(edge=v.edge, volume=vol, ground=ground, epsilon=v.epsilon,
                    min_cluster_voxels=v.min_cluster_voxels, min_density=v.min_density,
                    min_points_per_voxel=v.min_points_per_voxel, keep_frames=v.keep_frames,
-                   ground_clearance=v.ground_clearance, join_share=v.join_share, bridge_voxels=v.bridge_voxels)
+                   ground_clearance=v.ground_clearance, join_share=v.join_share, bridge_voxels=v.bridge_voxels,
+                   points_range_m=v.points_range_m, min_points_far=v.min_points_far)
 
     def process(self, cloud: PointCloud, ego: EgoMotion) -> Clusters:
         """Update the map with one frame and cluster the voxels above the road."""
@@ -104,6 +107,13 @@ class VoxelMapper:
             self.map.clear()
         self.epoch = ego.world_epoch
 
+    def _min_points(self, local: npt.NDArray[np.float64]) -> npt.NDArray[np.float64] | int:
+        """Points a voxel needs: fewer beyond ``points_range`` as a pixel's footprint grows with range squared."""
+        if self.points_range <= 0.0:
+            return self.min_points
+        scale = np.minimum(1.0, (self.points_range / np.maximum(np.hypot(local[:, 0], local[:, 1]), 1e-3)) ** 2)
+        return np.maximum(self.min_points_far, self.min_points * scale)
+
     def _above_road(self, road: Ground, pose: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
         """Voxels inside the volume of interest and above the road, judged in this vehicle frame."""
         vol = self.volume
@@ -111,5 +121,5 @@ class VoxelMapper:
         rot = pose[:3, :3]  # world -> vehicle frame is offset @ rot, written out to stay off BLAS threads
         local = offset[:, 0:1] * rot[0] + offset[:, 1:2] * rot[1] + offset[:, 2:3] * rot[2]
         height = road.height(local)
-        return ((self.map.counts >= self.min_points) & (height > self.clearance) & (height <= vol.z_max)
+        return ((self.map.counts >= self._min_points(local)) & (height > self.clearance) & (height <= vol.z_max)
                 & (local[:, 0] >= vol.x_min) & (local[:, 0] <= vol.x_max) & (np.abs(local[:, 1]) <= vol.y_half))
