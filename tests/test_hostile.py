@@ -297,6 +297,7 @@ def hostile_run(
     kinds: Counter[str] = Counter()
     stop = threading.Event()
     elapsed: list[float] = []
+    window = [time.time_ns()]
     token = declare_alive(fuzz_session, "fuzzer", "ego")  # the replay's first frame follows this
     worker = threading.Thread(target=lambda: elapsed.append(fuzz(fuzz_session, pools, fuzz_s, sent, kinds, stop)))
     worker.start()
@@ -313,6 +314,7 @@ def hostile_run(
         stop.set()
         worker.join(10)
         token.undeclare()
+    window.append(time.time_ns())
     total = sum(sent.values())
 
     def tracker_done() -> bool:
@@ -365,6 +367,9 @@ def hostile_run(
     assert sorted(got) == sorted(clean) == list(range(FRAMES))
     for k in range(FRAMES):
         assert obstacle_rows(got[k]) == obstacle_rows(clean[k]), f"frame {k} differs from the clean run"
+    under_fire = sum(window[0] <= m.timing[0][1] <= window[1] for m in got.values())  # replayed while fuzzing
+    print(f"HOSTILE frames replayed while the fuzzer sent: {under_fire} of {FRAMES}")
+    assert under_fire >= FRAMES // 2
     watcher.undeclare()
     fuzz_session.close()
     watch_session.close()
