@@ -143,7 +143,7 @@ class TrackerConfig:
     w_density: float = 0.5
     gate: float = 3.0  # association threshold on the weighted distance
     position_gate: float = 3.5  # pairs further apart than this many standard deviations never associate
-    accept_frames: int = 3
+    accept_frames: int = 2  # 3 lost 2-6 points of moving TP (pedestrians seen intermittently)
     ghost_frames: int = 5
     moving_on_mps: float = 0.7  # evaluation: moving >= 1.0 m/s, stationary < 0.3 m/s
     moving_off_mps: float = 0.4
@@ -155,10 +155,11 @@ class TrackerConfig:
     range_noise_per_m2: float = 0.0005  # added std along the ray per squared metre of range (stereo)
     initial_speed_std: float = 5.0  # horizontal velocity std of a new track (m/s)
     initial_vertical_speed_std: float = 0.3  # its vertical velocity std (m/s)
-    noise_adaptation: float = 0.3  # weight of the newest normalised innovation in a track's noise scale (0 = off)
+    noise_adaptation: float = 0.0  # weight of the newest normalised innovation in a track's noise scale (0 = off)
     appearance_smoothing: float = 0.5  # weight of the newest cluster in a track's colour/size/density
     frame_period_s: float = 0.1  # time step when stamps cannot give one
-    jump_nis: float = float("inf")  # squared Mahalanobis innovation (3 dof) over which a centroid re-anchors the track
+    jump_nis: float = 7.8  # innovation (squared Mahalanobis, 3 dof; 7.8 = chi2 95 %) that re-anchors, not corrects
+    fragment_margin: float = 0.25  # clusters in a known track's predicted box grown by this (m) merge; < 0: off
 
 
 @dataclass

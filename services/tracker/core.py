@@ -25,9 +25,10 @@ import numpy as np
 import numpy.typing as npt
 
 from common.config import Config, VolumeConfig
-from common.messages import Clusters, EgoMotion, Obstacles
+from common.messages import Cluster, Clusters, EgoMotion, Obstacles
 from services.tracker import kalman
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
+from services.tracker.fragments import gather
 from services.tracker.measurement import cut_covariance, stereo_covariance, visibility_covariance
 from services.tracker.motion_state import (
     SLIDE_SMOOTHING,
@@ -40,7 +41,7 @@ from services.tracker.motion_state import (
 from services.tracker.observations import Observations, observe
 from services.tracker.queues import advance
 from services.tracker.report import obstacles_of
-from services.tracker.track import TrackTable
+from services.tracker.track import ACCEPTANCE, TrackTable
 
 NDArray = npt.NDArray[Any]
 
@@ -76,6 +77,8 @@ class Tracker:
         noise_adaptation: float,
         appearance_smoothing: float,
         frame_period_s: float,
+        jump_nis: float = float("inf"),
+        fragment_margin: float = -1.0,
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -89,6 +92,8 @@ class Tracker:
         self.noise_adaptation = noise_adaptation
         self.smoothing = appearance_smoothing
         self.frame_period_s = frame_period_s
+        self.jump_nis = jump_nis
+        self.fragment_margin = fragment_margin
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.tracks = TrackTable()
         self.ego = EgoVelocity()
@@ -113,6 +118,8 @@ class Tracker:
             noise_adaptation=t.noise_adaptation,
             appearance_smoothing=t.appearance_smoothing,
             frame_period_s=t.frame_period_s,
+            jump_nis=t.jump_nis,
+            fragment_margin=t.fragment_margin,
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
@@ -121,9 +128,10 @@ class Tracker:
             return obstacles_of(self.tracks, self.ego.velocity, clusters, ego)
         dt, elapsed = self._time_step(clusters)
         trusted = self._observe_ego(ego)
-        obs = self._observe(clusters)
-        r = self._cluster_cov(obs, self._placement_pose(clusters, ego), clusters.voxel_edge)
+        pose = self._placement_pose(clusters, ego)
         self._predict(dt)
+        obs = self._observe(self._gather(clusters), pose, clusters.voxel_edge)
+        r = self._cluster_cov(obs, pose, clusters.voxel_edge)
         rows, cols = self._associate(obs, r)
         if trusted:
             self._correct(rows, obs.take(cols), r[cols])
@@ -177,8 +185,18 @@ class Tracker:
         self.ego.observe(ego.pose, trusted, ego.world_epoch, ego.stamp_ns)
         return trusted
 
-    def _observe(self, clusters: Clusters) -> Observations:
-        obs, dropped = observe(clusters.clusters)
+    def _gather(self, clusters: Clusters) -> list[Cluster]:
+        """The clusters with the pieces of one known object merged (fragments.py)."""
+        t = self.tracks
+        known = t.queue != ACCEPTANCE
+        if self.fragment_margin < 0.0 or not known.any():
+            return clusters.clusters
+        shift = (t.x[known, 0:3] + t.offset[known]) - t.centroid[known]
+        lo, hi = t.bbox_min[known] + shift, t.bbox_max[known] + shift
+        return gather(clusters.clusters, lo, hi, self.fragment_margin, clusters.voxel_edge)
+
+    def _observe(self, clusters: list[Cluster], pose: NDArray, edge: float) -> Observations:
+        obs, dropped = observe(clusters, pose, edge)
         self.counters["nan_clusters"] += dropped
         if len(obs) == 0:
             self.counters["empty_frames"] += 1
@@ -212,7 +230,7 @@ class Tracker:
 
     def _cluster_cov(self, obs: Observations, pose: NDArray, voxel_edge: float) -> NDArray:
         """How far each centroid can be trusted from the cluster alone (measurement.py)."""
-        r = stereo_covariance(obs.centroid, pose[0:3, 3], self.measurement_std, self.range_noise_per_m2)
+        r = stereo_covariance(obs.anchor, pose[0:3, 3], self.measurement_std, self.range_noise_per_m2)
         return r + cut_covariance(obs.bbox_min, obs.bbox_max, pose, self.volume, voxel_edge)
 
     def _correct(self, rows: NDArray, obs: Observations, r: NDArray) -> None:
@@ -220,13 +238,23 @@ class Tracker:
         if len(rows) == 0:
             return
         t = self.tracks
+        self._turn_sides(rows, obs)
         r = r + visibility_covariance(obs.extent, t.bbox_max[rows] - t.bbox_min[rows])
         # adaptive noise: a cluster whose centroid keeps jumping by more than its covariance says
         # (a fragment of a split object, changing membership) is believed that much less
-        nis = kalman.normalised_innovation(t.x[rows], t.p[rows], obs.centroid, r)
-        t.nis[rows] += self.noise_adaptation * (nis - t.nis[rows])
+        nis = kalman.normalised_innovation(t.x[rows], t.p[rows], obs.anchor, r)
         r = r * np.maximum(t.nis[rows], 1.0)[:, None, None]
-        x, p = kalman.update(t.x[rows], t.p[rows], obs.centroid, r)
+        x, p = kalman.update(t.x[rows], t.p[rows], obs.anchor, r)
+        # a centroid further off than the filter allows is a cluster that changed (split, merge,
+        # another face in view), not the object moving: re-anchor the position, keep the velocity
+        jump = nis * 3.0 > self.jump_nis
+        x[jump, 0:3] = obs.anchor[jump]
+        x[jump, 3:6] = t.x[rows][jump, 3:6]
+        p[jump] = t.p[rows][jump]
+        p[jump, 0:3, 0:3] = r[jump]
+        p[jump, 0:3, 3:6] = 0.0
+        p[jump, 3:6, 0:3] = 0.0
+        t.nis[rows] += self.noise_adaptation * (np.where(jump, t.nis[rows], nis) - t.nis[rows])
         t.x[rows], t.p[rows] = x, p
         t.offset[rows] = obs.centroid - x[:, 0:3]
         t.centroid[rows], t.bbox_min[rows], t.bbox_max[rows] = obs.centroid, obs.bbox_min, obs.bbox_max
@@ -239,6 +267,18 @@ class Tracker:
         t.extent[rows] += a * (obs.extent - t.extent[rows])
         t.extent_slow[rows] += SLIDE_SMOOTHING * (obs.extent - t.extent_slow[rows])
         t.density[rows] += a * (obs.density - t.density[rows])
+
+    def _turn_sides(self, rows: NDArray, obs: Observations) -> None:
+        """Follow the side face now in view, shifting the state by that face's offset on this cluster."""
+        t = self.tracks
+        turned = np.flatnonzero(t.side[rows] != obs.side)
+        if len(turned) == 0:
+            return
+        rows_turned = rows[turned]
+        now = obs.anchors[turned, obs.side[turned]]
+        before = obs.anchors[turned, t.side[rows_turned]]
+        t.x[rows_turned, 0:3] += now - before
+        t.side[rows_turned] = obs.side[turned]
 
     def _advance_queues(self, rows: NDArray, elapsed: int) -> None:
         seen = np.zeros(len(self.tracks), dtype=bool)
@@ -259,9 +299,10 @@ class Tracker:
             TrackTable(
                 ids=ids,
                 queue=np.zeros(n, dtype=np.int8),
-                x=np.hstack([obs.centroid, np.zeros((n, 3))]),
+                x=np.hstack([obs.anchor, np.zeros((n, 3))]),
                 p=kalman.initial_covariance(r, self.velocity_var),
-                offset=np.zeros((n, 3)),
+                offset=obs.centroid - obs.anchor,
+                side=obs.side.copy(),
                 hits=np.ones(n, dtype=np.int64),
                 misses=np.zeros(n, dtype=np.int64),
                 age=np.ones(n, dtype=np.int64),

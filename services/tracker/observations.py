@@ -9,6 +9,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.messages import Cluster
+from services.tracker.anchor import anchors
 
 NDArray = npt.NDArray[Any]
 
@@ -19,6 +20,8 @@ class Observations:
 
     index: NDArray  # (m,) position in the message's cluster list
     centroid: NDArray  # (m, 3)
+    anchors: NDArray  # (m, 3, 3) the points the filter may follow, one per side (anchor.py)
+    side: NDArray  # (m,) the side in view
     bbox_min: NDArray
     bbox_max: NDArray
     rgb: NDArray
@@ -30,6 +33,11 @@ class Observations:
     def extent(self) -> NDArray:
         return self.bbox_max - self.bbox_min
 
+    @property
+    def anchor(self) -> NDArray:
+        """(m, 3) the point on the side in view."""
+        return self.anchors[np.arange(len(self)), self.side]
+
     def __len__(self) -> int:
         return int(self.index.shape[0])
 
@@ -38,7 +46,7 @@ class Observations:
         return Observations(*(getattr(self, name)[rows] for name in self.__dataclass_fields__))
 
 
-def observe(clusters: list[Cluster]) -> tuple[Observations, int]:
+def observe(clusters: list[Cluster], pose: NDArray, edge: float) -> tuple[Observations, int]:
     """Stack the clusters' features; return them and how many were dropped as non-finite.
 
     A cluster with a NaN or infinite centroid, box, colour or density cannot be predicted, compared
@@ -57,9 +65,12 @@ def observe(clusters: list[Cluster]) -> tuple[Observations, int]:
         scalars[i] = (c.density, c.volume)
     finite = np.isfinite(geometry).all(axis=1) & np.isfinite(colour).all(axis=1) & np.isfinite(scalars).all(axis=1)
     keep = np.flatnonzero(finite)
+    points, side = anchors([clusters[i] for i in keep.tolist()], geometry[keep, 0:3], pose, edge)
     obs = Observations(
         index=keep,
         centroid=geometry[keep, 0:3],
+        anchors=points,
+        side=side,
         bbox_min=geometry[keep, 3:6],
         bbox_max=geometry[keep, 6:9],
         rgb=colour[keep, 0:3],
