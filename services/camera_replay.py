@@ -6,7 +6,8 @@ published Obstacles for frame k; a reply that does not come within ``replay.lock
 is logged, counted in Health and the summary, and replay goes on). ``--lockstep-on
 stereo_depth/points`` paces by the first stage instead: the camera runs exactly as fast as stereo
 takes frames, and the later stages work on frame k while stereo works on k+1 — the pipeline's
-own top rate, without a flood of frames that only get dropped. Every StereoFrame gets a
+own top rate, without a flood of frames that only get dropped; with ``replay.lockstep_window`` 2
+the next frame already waits when stereo finishes one, so no stage idles during a bus hop. Every StereoFrame gets a
 fresh timing trail ``[("camera_replay", t, t)]`` so latencies never depend on when the data was
 recorded; ground truth of the first pass goes out byte for byte as recorded. Before the first
 frame the replay waits for the liveliness tokens of the services it feeds (``--wait-for``; the
@@ -93,6 +94,8 @@ class Replay:
         except zenoh.ZError as exc:
             raise ConfigError(f"replay.topics {rc.topics!r}: not valid key expressions ({exc})") from None
         self.pubs: dict[str, Publisher] = {}
+        if rc.lockstep_window < 1:
+            raise ConfigError(f"replay.lockstep_window must be at least 1, got {rc.lockstep_window}")
         if rc.lockstep and rc.lockstep_topic not in TOPICS:
             raise ConfigError(f"replay.lockstep_topic {rc.lockstep_topic!r} is none of {sorted(TOPICS)}")
         # FIFO, not newest: every report is taken, so Health shows no "dropped" reports that were merely superseded
@@ -101,7 +104,7 @@ class Replay:
             if rc.lockstep
             else None
         )
-        self._pending: int | None = None  # last frame id whose report lockstep still awaits
+        self._in_flight: list[int] = []  # frame ids sent whose report lockstep still awaits, oldest first
         self._done = -1  # highest frame id reported
         self.health = StageHealth("camera_replay", [self.reports] if self.reports else [])
         self.health.extra |= {
@@ -129,7 +132,7 @@ class Replay:
                     break
                 try:
                     if topic == CAMERA_TOPIC:
-                        self._await_report()
+                        self._await_reports(self.cfg.replay.lockstep_window - 1)
                         self.pacer.wait(stamp)
                         last_id = self._publish_frame(rec, frame_id, stamp)
                     else:
@@ -144,7 +147,7 @@ class Replay:
                 if loop and self.stats.frames:
                     continue
             break
-        self._await_report()
+        self._await_reports(0)
         return self.stats
 
     def _end_of_pass(self) -> None:
@@ -175,7 +178,7 @@ class Replay:
         self.stats.frames += 1
         self.health.frames_out += 1
         self.health.processed((time.perf_counter() - start) * 1e3)
-        self._pending = frame_id
+        self._in_flight.append(frame_id)
         return frame_id
 
     def _publish_other(self, rec: RawRecord, topic: str, frame_id: int | None, stamp: int) -> None:
@@ -185,11 +188,12 @@ class Replay:
         self._publisher(topic).put(data)
         self.stats.other += 1
 
-    def _await_report(self) -> None:
-        """Lockstep: block until the paced-by topic has reported the last frame sent, or count a timeout."""
-        if self.reports is None or self._pending is None:
-            return
-        frame_id, self._pending = self._pending, None
+    def _await_reports(self, room: int) -> None:
+        """Lockstep: block until at most ``room`` frames sent await their report; a missing one is a timeout."""
+        while self.reports is not None and len(self._in_flight) > room:
+            self._await_report(self._in_flight.pop(0))
+
+    def _await_report(self, frame_id: int) -> None:
         timeout = self.cfg.replay.lockstep_timeout_s
         deadline = time.monotonic() + timeout
         while self._done < frame_id and not self.stop.is_set():
