@@ -13,6 +13,7 @@ from common.config import Config
 from common.geometry import make_pose, rot_z
 from common.messages import Cluster, Clusters, EgoMotion, Obstacles, decode, encode
 from services.tracker import Tracker, kalman
+from services.tracker.anchor import anchors
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
 
 EDGE = 0.25
@@ -360,3 +361,73 @@ def test_fifty_obstacles_tracked_without_identity_swaps() -> None:
             ids_of[nearest].add(o.id)
     assert len(out.obstacles) == 50 and all(o.state == "tracked" for o in out.obstacles)
     assert all(len(v) == 1 for v in ids_of.values())
+
+
+# ------------------------------------------------------------------ anchors, pieces, jumps
+
+
+def surface(lo: tuple[float, float, float], hi: tuple[float, float, float], cid: int = 0,
+            rgb: tuple[float, float, float] = (0.6, 0.2, 0.2)) -> Cluster:
+    """A cluster made of the voxels filling the box ``lo``..``hi``: centroid and box from its voxels."""
+    axes = [np.arange(np.floor(a / EDGE), np.ceil(b / EDGE)) for a, b in zip(lo, hi, strict=True)]
+    voxels = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3).astype(np.int32)
+    centres = (voxels + 0.5) * EDGE
+    base = cluster(cid, centres.mean(axis=0), rgb=rgb)
+    return Cluster(
+        id=cid, voxels=voxels, voxel_count=len(voxels), color_mean_rgb=base.color_mean_rgb,
+        color_var_rgb=base.color_var_rgb, color_mean_hsl=base.color_mean_hsl, color_var_hsl=base.color_var_hsl,
+        bbox_min=centres.min(axis=0) - EDGE / 2, bbox_max=centres.max(axis=0) + EDGE / 2,
+        centroid=centres.mean(axis=0), density=1.0, volume=len(voxels) * EDGE**3,
+    )  # fmt: skip
+
+
+def test_anchor_stays_on_the_faces_in_view_while_the_far_side_grows() -> None:
+    # a parked car right of the road: its rear (near x) and its road side (high y) face the camera
+    short, long = surface((20.0, -4.0, 0.25), (21.0, -2.25, 1.5)), surface((20.0, -4.0, 0.25), (24.5, -2.25, 1.5))
+    points, side = anchors([short, long], np.array([short.centroid, long.centroid]), np.eye(4), EDGE)
+    assert side.tolist() == [2, 2]
+    a, b = points[0, 2], points[1, 2]
+    assert abs(a[0] - b[0]) < 0.3 and abs(a[1] - b[1]) < 0.01  # the centroids are 1.75 m apart
+    assert abs(short.centroid[0] - long.centroid[0]) > 1.5
+
+
+def test_object_crossing_the_line_of_sight_keeps_its_lateral_speed() -> None:
+    # the followed face changes (right face, middle, left face) with no jump in the state
+    tracker = new_tracker()
+    for k in range(40):
+        y = -4.0 + 2.0 * k * 0.1  # a car 4.5 m long driving across, 2 m/s
+        out = step(tracker, k, [surface((12.0, y - 2.25, 0.25), (14.0, y + 2.25, 1.5))])
+        if k >= 10:
+            (o,) = out.obstacles
+            assert o.moving and abs(o.velocity[1] - 2.0) < 0.3 and abs(o.velocity[0]) < 0.3, k
+
+
+def test_pieces_of_a_known_object_stay_one_track() -> None:
+    # a car tracked whole, then split by colour into body and windows that change from frame to frame
+    tracker = new_tracker()
+    for k in range(5):
+        out = step(tracker, k, [surface((15.0, -1.0, 0.25), (19.5, 1.0, 1.5))])
+    (car,) = [o for o in out.obstacles if o.state == "tracked"]
+    rng = np.random.default_rng(8)
+    for k in range(5, 25):
+        cut = rng.uniform(15.5, 19.0)
+        body = surface((15.0, -1.0, 0.25), (cut, 1.0, 1.5), 0)
+        windows = surface((cut, -1.0, 0.25), (19.5, 1.0, 1.5), 1, (0.2, 0.2, 0.6))
+        out = step(tracker, k, [body, windows])
+        assert [o.id for o in out.obstacles] == [car.id], k
+        assert not out.obstacles[0].moving
+    assert tracker.counters["tracks_born"] == 1
+
+
+def test_a_cluster_that_changes_shape_does_not_give_a_static_object_speed() -> None:
+    # 25 m ahead the centroid is good to 0.15 m across the line of sight; from frame 12 on the
+    # cluster takes in a piece of its neighbour and its centroid steps 0.8 m sideways for good
+    rng = np.random.default_rng(9)
+    tracker = new_tracker()
+    for k in range(30):
+        centre = np.array([25.0, 1.0, 0.75]) + rng.normal(scale=0.05, size=3)
+        centre[1] += 0.8 * (k >= 12)
+        out = step(tracker, k, [cluster(0, centre, size=(1.0, 1.0, 1.5))])
+        (o,) = out.obstacles
+        assert not o.moving and (k < 12 or o.speed < 0.3), (k, o.speed)
+    assert tracker.counters["tracks_born"] == 1
