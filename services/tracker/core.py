@@ -28,7 +28,7 @@ from common.config import Config, VolumeConfig
 from common.messages import Cluster, Clusters, EgoMotion, Obstacles
 from services.tracker import kalman
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
-from services.tracker.fragments import gather
+from services.tracker.fragments import claims, gather
 from services.tracker.measurement import cut_covariance, stereo_covariance, visibility_covariance
 from services.tracker.motion_state import (
     SLIDE_SMOOTHING,
@@ -41,7 +41,7 @@ from services.tracker.motion_state import (
 from services.tracker.observations import Observations, observe
 from services.tracker.queues import advance
 from services.tracker.report import obstacles_of
-from services.tracker.track import ACCEPTANCE, TrackTable
+from services.tracker.track import ACCEPTANCE, TRACKED, TrackTable
 
 NDArray = npt.NDArray[Any]
 
@@ -283,9 +283,25 @@ class Tracker:
     def _advance_queues(self, rows: NDArray, elapsed: int) -> None:
         seen = np.zeros(len(self.tracks), dtype=bool)
         seen[rows] = True
-        keep = advance(self.tracks, seen, elapsed, self.accept_frames, self.ghost_frames)
+        keep = advance(self.tracks, seen, elapsed, self.accept_frames, self.ghost_frames, self._inside_known(seen))
         self.counters["tracks_dropped"] += int((~keep).sum())
         self.tracks.keep(keep)
+
+    def _inside_known(self, seen: NDArray) -> NDArray:
+        """Acceptance tracks whose centroid lies in the box of a tracked object seen this frame.
+
+        Such a track is a piece the merge of fragments.py missed (it was outside the predicted
+        box); promoted, it would be a second obstacle on one object, moving with it.
+        """
+        t = self.tracks
+        held = np.zeros(len(t), dtype=bool)
+        young = t.queue == ACCEPTANCE
+        known = seen & (t.queue == TRACKED)
+        if self.fragment_margin < 0.0 or not young.any() or not known.any():
+            return held
+        inside = claims(t.centroid[young], t.bbox_min[known], t.bbox_max[known], self.fragment_margin)
+        held[young] = inside.any(axis=0)
+        return held
 
     def _spawn(self, obs: Observations, r: NDArray) -> None:
         """New acceptance tracks: position as trusted as its cluster, velocity unknown."""

@@ -20,18 +20,24 @@ from services.tracker.track import ACCEPTANCE, GHOST, TRACKED, TrackTable
 NDArray = npt.NDArray[Any]
 
 
-def advance(tracks: TrackTable, seen: NDArray, elapsed: int, accept_frames: int, ghost_frames: int) -> NDArray:
+def advance(
+    tracks: TrackTable, seen: NDArray, elapsed: int, accept_frames: int, ghost_frames: int, held: NDArray | None = None
+) -> NDArray:
     """Move every track to its queue for this frame; return the mask of tracks to keep.
 
     ``seen`` marks the tracks associated with a cluster this frame; ``elapsed`` is the number of
-    frames since the previous processed one (1 without a gap).
+    frames since the previous processed one (1 without a gap); ``held`` marks acceptance tracks
+    not to promote yet (a piece inside a known object, see fragments.py).
     """
     tracks.age += elapsed
     tracks.hits = np.where(seen, tracks.hits + 1, 0)
     tracks.misses = np.where(seen, 0, tracks.misses + elapsed)
     was = tracks.queue
     queue = was.copy()
-    queue[seen & (was == ACCEPTANCE) & (tracks.hits >= accept_frames)] = TRACKED
+    ready = seen & (was == ACCEPTANCE) & (tracks.hits >= accept_frames)
+    if held is not None:
+        ready &= ~held
+    queue[ready] = TRACKED
     queue[seen & (was == GHOST)] = TRACKED
     queue[~seen & (was == TRACKED)] = GHOST
     tracks.queue = queue
