@@ -38,6 +38,7 @@ from common.errors import DecodeError
 from common.messages import TOPICS, Health, Message, Obstacles, decode, encode, key_for, topic_of
 from common.recording import open_recording
 from services.demo import BUNDLED, LOCAL_SPEC, recording_settings
+from services.launch_spec import load_spec
 from services.pipeline import process_file
 
 pytestmark = pytest.mark.reliability
@@ -239,8 +240,6 @@ def fuzz(session: zenoh.Session, pools: dict[str, list[tuple[str, bytes]]], seco
 
 def expected_errors(sent: Counter[str]) -> dict[str, int]:
     """What each stage's Health must count: the bad messages sent on the keys it reads."""
-    from services.launch_spec import load_spec
-
     spec = load_spec(LOCAL_SPEC, {"port": "1", "out": "/tmp", "recording": str(BUNDLED), "max_frames": "1"})
     return {s: sum(sent[t] for t in spec.services[s].inputs) for s in STAGES}
 
@@ -264,6 +263,14 @@ def hostile_run(
     processes: Processes, tmp_path: Path, clean_run: Path, templates: dict[str, Message], fuzz_s: float
 ) -> None:
     """The replay is paced to last the fuzzing window and 3 s more; everything asserted is in the module doc."""
+    with contextlib.ExitStack() as sessions:
+        _hostile_run(processes, tmp_path, clean_run, templates, fuzz_s, sessions)
+
+
+def _hostile_run(
+    processes: Processes, tmp_path: Path, clean_run: Path, templates: dict[str, Message], fuzz_s: float,
+    closing: contextlib.ExitStack,
+) -> None:
     rate = FRAMES / (10.0 * (fuzz_s + 3.0))  # of the recording's 10 Hz
     port = free_port()
     info = open_recording(BUNDLED).info()
@@ -283,8 +290,8 @@ def hostile_run(
 
     wait_for(connect, 90, "the router")
     assert launch.poll() is None, processes.log(launch)
-    watch_session = sessions[0]
-    fuzz_session = open_session(bus)
+    watch_session = closing.enter_context(sessions[0])
+    fuzz_session = closing.enter_context(open_session(bus))
     alive: set[str] = set()
     watcher = watch_alive(watch_session, "ego", lambda s, up: alive.add(s) if up else alive.discard(s))
     health = HealthWatch(watch_session)
@@ -327,7 +334,7 @@ def hostile_run(
     def counted() -> bool:
         return all((h := health.get(s)) is not None and h.decode_errors >= n for s, n in expected.items())
 
-    with contextlib.suppress(BaseException):
+    with contextlib.suppress(pytest.fail.Exception):  # the assertions below say what is missing
         wait_for(counted, 30, "Health to count the bad messages")
     rss_after = {name: _rss_kb(pid) for name, pid in pids.items() if name in rss_before}
     counts = {s: (n, health.get(s).decode_errors if health.get(s) else None) for s, n in expected.items()}
@@ -371,5 +378,3 @@ def hostile_run(
     print(f"HOSTILE frames replayed while the fuzzer sent: {under_fire} of {FRAMES}")
     assert under_fire >= FRAMES // 2
     watcher.undeclare()
-    fuzz_session.close()
-    watch_session.close()
