@@ -243,18 +243,29 @@ def test_the_pipeline_runs_on_the_secure_bus_and_the_monitor_only_reads(
     health: dict[str, Health] = {}
     monitor[0].declare_subscriber(key_for("health/*"), lambda s: health.update(
         {(h := decode(s.payload.to_bytes(), Health)).service: h}))
+    last_obstacles: list[bytes] = []
+    monitor[0].declare_subscriber(KEY, lambda s: last_obstacles.append(s.payload.to_bytes()))
     replayed = re.compile(r"camera_replay\s+exited with 0")
     wait_for(lambda: bool(replayed.search(processes.log(launch))) or launch.poll() is not None, 180,
              "the replay to finish")
     assert launch.poll() is None, processes.log(launch)
     stages = ("stereo_depth", "odometry", "voxel_mapper", "tracker")
     wait_for(lambda: all(s in health and health[s].frames_out >= frames for s in stages), 30, "every stage's Health")
+    car = session(profile.file("client-mtls"))
+    # the real `stereovox monitor`, as deploy/README.md tells one to start it; its snapshot needs an
+    # Obstacles message, so a car session repeats the last frame's until the monitor has printed
+    dashboard = processes.start(stereovox_cmd(
+        "monitor", "--once", "--timeout", "60", "--connect", f"tls/127.0.0.1:{profile.port}",
+        "--set", f"bus.zenoh_config={profile.file('monitor-mtls')}"), "monitor")
+    wait_for(lambda: car.put(KEY, last_obstacles[-1]) or dashboard.poll() is not None, 90, "the monitor's snapshot",
+             interval=0.5)
+    assert dashboard.returncode == 0, processes.log(dashboard)
+    assert all(s in processes.log(dashboard) for s in stages), processes.log(dashboard)
     # N junk puts on the tracker's input from the monitor (denied), then N from a car session (the
     # control: they arrive, so the tracker's decode-error count shows exactly who got through)
     forged = key_for("voxel_mapper/clusters")
     for _ in range(N):
         monitor[0].put(forged, b"forged by the monitor")
-    car = session(profile.file("client-mtls"))
     time.sleep(0.5)
     for _ in range(N):
         car.put(forged, b"junk from the car")
