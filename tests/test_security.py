@@ -24,7 +24,7 @@ import pytest
 import zenoh
 from conftest import REPO, Processes, free_port, stereovox_cmd, wait_for
 
-from common.bus import open_session, watch_alive
+from common.bus import declare_alive, open_session, watch_alive
 from common.config import BusConfig
 from common.errors import BusError
 from common.messages import Health, decode, key_for
@@ -174,7 +174,16 @@ def test_usrpwd_profile_lets_the_car_publish_the_monitor_read_and_nobody_else_in
     inboxes = {name: Inbox(s) for name, s in sessions.items() if name != "car_tx"}
     senders = {"car_tx": sessions["car_tx"], "monitor": sessions["monitor"], "guest": sessions["guest"],
                "anon_peer": sessions["anon_peer"]}
+    # liveliness too: a monitor cannot pretend a service is up (the launcher trusts these tokens)
+    seen_by_car: set[str] = set()
+    watch_alive(sessions["car"], "ego", lambda s, up: seen_by_car.add(s) if up else None)
+    tokens = [declare_alive(sessions["monitor"], "impostor", "ego"),
+              declare_alive(sessions["car_tx"], "tracker", "ego")]  # the control: a car's token arrives
     got = exchange(senders, inboxes, "car_tx")
+    wait_for(lambda: "tracker" in seen_by_car, 10, "the car's liveliness token")
+    assert "impostor" not in seen_by_car, "the monitor's liveliness token reached the car"
+    for token in tokens:
+        token.undeclare()
     report("usrpwd", got, refusals)
     assert all(refusals.values()), refusals
     assert got["car"] == {"car_tx": N}, "the car reads the car and nothing the monitor, guest or a peer sent"
