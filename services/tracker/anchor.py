@@ -36,23 +36,34 @@ def anchors(clusters: list[Cluster], centroids: NDArray, pose: NDArray, edge: fl
     Side 0 takes the low-y face (object left of the line of sight), 1 the middle (straddling it),
     2 the high-y face (right of it); x is the near face and z the centroid's in all three. A
     cluster without voxels, or a frame without a pose, keeps its centroid for every side.
+    Percentiles are nearest-rank, taken for every cluster at once from one sort of all voxels
+    by (cluster, value): per-cluster ``np.quantile`` calls cost 25 ms for 50 clusters.
     """
     n = len(clusters)
     out = np.repeat(np.asarray(centroids, dtype=np.float64)[:, None, :], 3, axis=1)
     side = np.ones(n, dtype=np.int8)
-    if n == 0 or not np.isfinite(pose).all():
+    counts = np.array([np.asarray(c.voxels).shape[0] for c in clusters], dtype=np.int64)
+    if n == 0 or not np.isfinite(pose).all() or counts.sum() == 0:
         return out, side
     rotation, origin = pose[0:3, 0:3], pose[0:3, 3]
-    lo_q, hi_q = FACE_PERCENTILE / 100.0, 1.0 - FACE_PERCENTILE / 100.0
-    for i, c in enumerate(clusters):
-        voxels = np.asarray(c.voxels)
-        if voxels.shape[0] == 0:
-            continue
-        local = ((voxels + 0.5) * edge - origin) @ rotation[:, 0:2]  # vehicle x, y of each voxel
-        near_x = np.quantile(local[:, 0], lo_q)
-        y_lo, y_hi = np.quantile(local[:, 1], (lo_q, hi_q))
-        z = (rotation.T @ (out[i, 0] - origin))[2]
-        points = np.array([[near_x, y_lo, z], [near_x, 0.5 * (y_lo + y_hi), z], [near_x, y_hi, z]])
-        out[i] = points @ rotation.T + origin
-        side[i] = 2 if y_hi < 0.0 else (0 if y_lo > 0.0 else 1)
+    voxels = np.concatenate([np.asarray(c.voxels, dtype=np.float64).reshape(-1, 3) for c in clusters])
+    local = ((voxels + 0.5) * edge - origin) @ rotation[:, 0:2]  # vehicle x, y of every voxel
+    label = np.repeat(np.arange(n), counts)
+    has = counts > 0
+    starts = np.minimum(np.concatenate([[0], np.cumsum(counts)[:-1]]), len(voxels) - 1)
+    q = FACE_PERCENTILE / 100.0
+
+    def ranked(values: NDArray, shares: tuple[float, ...]) -> list[NDArray]:
+        low = values.min()
+        order = np.argsort(label * (float(values.max() - low) + 1.0) + (values - low))
+        ordered = values[order]
+        return [ordered[starts + np.floor(share * (counts - 1) + 0.5).astype(np.int64)] for share in shares]
+
+    (near_x,) = ranked(local[:, 0], (q,))
+    y_lo, y_hi = ranked(local[:, 1], (q, 1.0 - q))
+    z = (out[:, 0] - origin) @ rotation[:, 2]
+    for k, y in enumerate((y_lo, 0.5 * (y_lo + y_hi), y_hi)):
+        points = np.column_stack([near_x, y, z])
+        out[has, k] = (points @ rotation.T + origin)[has]
+    side[has] = np.where(y_hi < 0.0, 2, np.where(y_lo > 0.0, 0, 1))[has]
     return out, side
