@@ -119,8 +119,8 @@ class VoxelConfig:
     """Voxel map and colour flood-fill clustering (steps 3 and 4)."""
 
     edge: float = 0.25
-    epsilon: float = 0.35  # Eq. 1 threshold on normalised colours
-    min_cluster_voxels: int = 12  # smaller clusters are merged into a neighbour or dropped (measured: 4..12)
+    epsilon: float = 0.4  # Eq. 1 threshold on normalised colours (measured: 0.25..0.45)
+    min_cluster_voxels: int = 20  # smaller clusters are merged into a neighbour or dropped (measured: 4..24)
     min_density: float = 0.02  # voxels / bounding-box volume (in voxels)
     min_points_per_voxel: int = 8  # points a voxel gathered before it is clustered (measured: 2..8)
     keep_frames: int = 0  # 0 = the paper: a voxel without points this frame is removed (1: more phantoms)
@@ -130,7 +130,7 @@ class VoxelConfig:
     terrain_max_grade: float = 0.15  # steepest road grade (and grade change per slice) followed
     join_share: float = 0.3  # clusters joined as parts of one object when this share of one links to the other
     bridge_voxels: int = 3  # a gap along the line of sight up to this many voxels still links two parts
-    points_range_m: float = 0.0  # beyond this range min_points_per_voxel falls with range squared (0 = fixed)
+    points_range_m: float = 15.0  # beyond this range min_points_per_voxel falls with range squared (0 = fixed)
     min_points_far: int = 2  # ... but never below this
 
 

@@ -244,7 +244,7 @@ def panel(x: float, per_voxel: int) -> tuple[np.ndarray, np.ndarray]:
 def test_far_sparse_surface_needs_the_range_scaled_point_threshold() -> None:
     """5 points per voxel: below the fixed 8, above 8 * (15 / 23.1)^2 = 3.4 at 23 m, not above 8 at 9 m."""
     far, near = panel(23.1, 5), panel(9.1, 5)
-    assert mapper(min_points_per_voxel=8).process(cloud(road(), far), ego()).clusters == []
+    assert mapper(min_points_per_voxel=8, points_range_m=0.0).process(cloud(road(), far), ego()).clusters == []
     out = mapper(min_points_per_voxel=8, points_range_m=15.0).process(cloud(road(), far), ego())
     assert len(out.clusters) == 1 and out.clusters[0].voxel_count == 40
     assert mapper(min_points_per_voxel=8, points_range_m=15.0).process(cloud(road(), near), ego()).clusters == []
