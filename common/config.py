@@ -71,6 +71,7 @@ class StereoConfig:
     fill_support_px: int = 5  # holes take the coarse value if within the fine ones this near (px); 0 = off
     hidden_fill_max_px: int = 12  # holes the right camera cannot see take the adjacent surface, this far (px); 0 = off
     hidden_fill_colour_step: int = 10  # ... but not across an edge: a step of more grey levels than this
+    min_texture: float = 4.0  # mean |grey x-gradient| (9 px square) below which fine values need the coarse's agreement
     pre_filter_cap: int = 63  # lower caps gain 0.3 points of D1 but lose sub-pixel precision
     mode: str = "3way"  # 3way | sgbm | hh | hh4
     color_matching: bool = False  # False = match grey images (measured better and faster)

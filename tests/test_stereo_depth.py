@@ -232,6 +232,25 @@ def test_search_range_follows_the_calibration() -> None:
     assert _core(num_disparities=100).search_range(_calib()) == 112
 
 
+def test_a_flat_noisy_sky_gives_no_points_but_the_textured_wall_below_keeps_them() -> None:
+    """Rows 0-59: a smooth vertical gradient with independent 1-level noise in each view (a real sky).
+
+    SGM carries disparities into it from below and the two full-resolution views half agree on
+    them; the texture test leaves only values the coarse pass corroborates (none here).
+    """
+    frame, rng = _scene(), np.random.default_rng(1)
+    sky = np.linspace(150, 230, 60)[:, None, None] * np.ones((1, WIDTH, 3))
+    left, right = frame.left.copy(), frame.right.copy()
+    left[:60] = np.clip(sky + rng.normal(0, 1.0, sky.shape), 0, 255)
+    right[:60] = np.clip(sky + rng.normal(0, 1.0, sky.shape), 0, 255)
+    cloudy = dataclasses.replace(frame, left=left, right=right)
+    _, unchecked = _core(min_texture=0).process(cloudy)
+    _, checked = _core().process(cloudy)
+    assert np.isfinite(unchecked.disparity[5:55]).sum() > 500  # 3-11 % of the sky, by noise seed
+    assert np.isfinite(checked.disparity[5:55]).sum() < 20
+    assert np.isfinite(checked.disparity[70:, 40:]).mean() > 0.95
+
+
 def test_hidden_pixels_take_the_surface_beside_them_but_not_across_a_colour_edge() -> None:
     """Row 0: left border unseen (match left of the right image); row 1: background hidden by a foreground."""
     image = np.full((3, 40, 3), 100, np.uint8)

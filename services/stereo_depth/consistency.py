@@ -52,3 +52,15 @@ def within_neighbours(
     high = cv2.dilate(np.where(valid, reference, far).astype(np.float32), kernel)
     low = -cv2.dilate(np.where(valid, -reference, far).astype(np.float32), kernel)
     return (high > far / 2) & (candidate <= high + max_diff) & (candidate >= low - max_diff)
+
+
+def textured(image: npt.NDArray[np.uint8], window: int, min_gradient: float) -> npt.NDArray[np.bool_]:
+    """Where the mean horizontal grey gradient over a ``window`` square reaches ``min_gradient``.
+
+    Matching cost is built on that gradient: where it is flat (sky, haze, blank walls), SGM's
+    smoothness carries values in from the edges and the two views can agree on the same wrong
+    value, which a left-right check does not catch.
+    """
+    grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
+    gradient = np.abs(cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3))
+    return cv2.blur(gradient, (window, window)) >= np.float32(min_gradient)

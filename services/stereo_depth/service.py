@@ -48,4 +48,3 @@ def stage(cfg: Config) -> Stage:
         empty=empty,
         degenerate=lambda: core.last_degenerate,
     )
-
