@@ -11,22 +11,25 @@ payload with what it adds over the direct loopback pair:
 - ``netns-router``: router and sender in A, receiver in B: what a service on ``perception-b``
   waits for a key published on ``perception-a`` in deploy/two-computers.yaml.
 
-Each run is a fresh pair of processes, so a slow run from a busy machine is one sample of
-several, and medians are reported. Namespaces need root; without it the two ``netns`` rows say
-why they are missing. Both hosts share one clock here, so cross-host latency is exact; on a
-vehicle it is only as good as the clock synchronisation (deploy/README.md, "Clocks").
+Each run is a fresh pair of processes and the topologies take turns, run after run, so a busy
+spell on a shared machine hits every row alike; medians over the runs are reported. Namespaces
+need root; without it the two ``netns`` rows are left out and it says why. Both hosts share
+one clock here, so cross-host latency is exact; on a vehicle it is only as good as the clock
+synchronisation (deploy/README.md, "Clocks").
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import shlex
 import subprocess
 import sys
 import time
+from collections import defaultdict
 from collections.abc import Iterator, Sequence
-from contextlib import AbstractContextManager, contextmanager
+from contextlib import AbstractContextManager, ExitStack, contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -81,21 +84,22 @@ def topologies(hosts: TwoHosts | None) -> Iterator[tuple[str, list[str], list[st
 
 
 def run_all(frames: int, rate: float, runs: int, payloads: Sequence[str]) -> list[dict[str, object]]:
-    """Every topology x payload, ``runs`` times each; one row of medians per pair."""
-    rows: list[dict[str, object]] = []
-    with two_namespaces("svh") as (hosts, why_not):
+    """Every topology x payload, ``runs`` times each, interleaved (a busy spell hits every row alike)."""
+    results: dict[tuple[str, str], list[BenchResult]] = defaultdict(list)
+    with two_namespaces("svh") as (hosts, why_not), ExitStack() as stack:
         if hosts is None:
             print(f"network namespaces unavailable ({why_not}): netns rows left out", file=sys.stderr)
-        for name, prefix, extra, router in topologies(hosts):
-            with router as endpoint:
-                for payload in payloads:
-                    width, height = PAYLOADS[payload]
-                    args = ["--frames", str(frames), "--rate", str(rate), "--width", str(width),
-                            "--height", str(height), *extra, *(["--router", endpoint] if endpoint else [])]
-                    results = [bench(args, prefix) for _ in range(runs)]
-                    rows.append(_row(name, payload, results))
-                    print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
-    return rows
+        rows = [(name, prefix, [*extra, *(["--router", endpoint] if endpoint else [])])
+                for name, prefix, extra, router in topologies(hosts)
+                for endpoint in [stack.enter_context(router)]]
+        for run in range(runs):
+            for (name, prefix, extra), payload in itertools.product(rows, payloads):
+                width, height = PAYLOADS[payload]
+                args = ["--frames", str(frames), "--rate", str(rate), "--width", str(width),
+                        "--height", str(height), *extra]
+                results[name, payload].append(bench(args, prefix))
+            print(f"run {run + 1}/{runs} done", file=sys.stderr, flush=True)
+    return [_row(name, payload, r) for (name, payload), r in results.items()]
 
 
 @contextmanager
