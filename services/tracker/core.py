@@ -1,10 +1,17 @@
 """Step 5 of the paper: clusters to tracked obstacles with an absolute velocity.
 
-Each frame: guard the input (stale, new world, gap), predict every track, associate clusters
-greedily (Algorithm IV-C.1), correct the associated tracks with a Kalman filter, move tracks
-between the acceptance, tracked and ghost queues, start tracks for the clusters left over, and
-label each track moving or stationary from its speed. Everything lives in the world frame of the
-odometry, so a velocity is over ground; ``velocity_rel`` subtracts the vehicle's own.
+Each frame: guard the input (stale, new world, gap), predict every track, merge the pieces of
+each known object (fragments.py), associate clusters greedily (Algorithm IV-C.1), correct the
+associated tracks with a Kalman filter, move tracks between the acceptance, tracked and ghost
+queues, start tracks for the clusters left over, and label each track moving or stationary from
+its speed. Everything lives in the world frame of the odometry, so a velocity is over ground;
+``velocity_rel`` subtracts the vehicle's own.
+
+The filter follows a cluster's faces turned to the camera (anchor.py), not its centroid, which
+slides as more or less of the object comes into view; the reported centroid is still the
+cluster's. A measurement further from the prediction than ``jump_nis`` allows is a cluster that
+changed shape (split, merged, another face in view): it re-anchors the position and leaves the
+velocity alone, since the step says nothing about how the object moves.
 
 Bad input is handled where it arrives and counted in ``counters``: clusters with non-finite
 geometry are dropped (``nan_clusters``); a frame whose id is not newer than the last is ignored
