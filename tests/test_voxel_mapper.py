@@ -266,7 +266,7 @@ def test_overhang_measure_sees_the_span_and_what_is_beneath() -> None:
     volume = Config().volume
     rows = frame_rows(mapper().process(cloud(road(), *parts), ego()), truth, np.eye(4), shapes, volume)
     assert len(rows) == 1 and rows[0]["spans"] and rows[0]["voxels_below"] == 0
-    assert rows[0]["underside"] == pytest.approx(2.75, abs=0.01)  # the beam's cells over the lane
+    assert rows[0]["underside"] == pytest.approx(2.875, abs=0.01)  # centre of the beam's lowest cells over the lane
     under = box((14.5, -0.5, 0), (15.5, 0.5, 1.5), BLUE)  # something under the beam that no ground truth lists
     rows = frame_rows(mapper().process(cloud(road(), *parts, under), ego()), truth, np.eye(4), shapes, volume)
     assert rows[0]["spans"] and rows[0]["voxels_below"] > 0

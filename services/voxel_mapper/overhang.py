@@ -6,11 +6,13 @@ box of a gantry or a cantilever sign reaches the road (its posts do), so the ove
 rebuilt from the scenario's own parts (same scenario and seed as the recording): the parts that
 do not stand on the ground are the overhang, their underside and top its true height (the top
 clipped to the volume of interest). Per frame and per counted overhanging object, the clustered
-voxels above the overhang's footprint (away from the posts, outside every other true object)
-are collected; the cluster holding most of them is the overhang's cluster, and the span of its
-cells there, underside to top, is compared with the truth (cells quantise it by up to an edge).
-Any clustered voxel there lower than the underside by more than the tolerance means the free
-space beneath is not free: merged with (or cluttered by) what is below. The cluster's whole box
+voxels above the overhang's footprint over the carriageway (away from the posts, outside every
+other true object) are collected; the cluster holding most of them is the overhang's cluster, and the span of its
+voxel centres there, underside to top, is compared with the truth (a centre is the unbiased
+place of what its cell holds, within half an edge; the cells' outer faces would add up to half
+an edge on each side). Any clustered voxel centre there lower than the underside by more than
+the tolerance means the free space beneath is not free: merged with (or cluttered by) what is
+below. The cluster's whole box
 (posts included) is reported beside it: it cannot reach below ``voxel.ground_clearance``.
 
 ``python -m services.voxel_mapper.overhang RUN.mcap`` prints the per-frame rows and a summary
@@ -38,6 +40,7 @@ from common.geometry import invert
 from common.messages import Clusters, GroundTruthEgo, GroundTruthObjects
 from common.recording import open_recording
 from common.scenarios.catalogue import build
+from common.scenarios.road import Road
 
 F64 = npt.NDArray[np.float64]
 TOLERANCE_M = 0.25
@@ -84,10 +87,12 @@ def overhangs(scenario: str, seed: int, z_max: float) -> dict[int, Overhang]:
 
 
 def frame_rows(clusters: Clusters, truth: GroundTruthObjects, true_pose: F64, shapes: dict[int, Overhang],
-               volume: VolumeConfig) -> list[dict[str, Any]]:
-    """One row per counted overhanging object: its cluster's height span and what lies beneath."""
+               volume: VolumeConfig, road: Road | None = None) -> list[dict[str, Any]]:
+    """One row per counted overhanging object: its cluster's span over the road and what lies beneath.
+
+    With ``road`` only voxels over its carriageway count (true world frame = the scenario's).
+    """
     to_vehicle = invert(np.asarray(clusters.ego_pose, dtype=np.float64))
-    half = 0.5 * clusters.voxel_edge
     views = {obj.id: truth_in_vehicle(obj, true_pose, volume) for obj in truth.objects}
     rows = []
     for oid, view in views.items():
@@ -106,8 +111,11 @@ def frame_rows(clusters: Clusters, truth: GroundTruthObjects, true_pose: F64, sh
             rel = vehicle - base
             local = np.stack([rel[:, 0] * c + rel[:, 1] * s, -rel[:, 0] * s + rel[:, 1] * c], axis=1)
             above = _inside(local, shape.over, TOLERANCE_M) & ~_inside(local, shape.posts, POST_CLEARANCE_M) & mine
+            if road is not None:
+                world = vehicle @ true_pose[:3, :3].T + true_pose[:3, 3]
+                above &= np.abs(road.to_road(world[:, 0], world[:, 1])[1]) < road.half_width
             z = rel[above, 2]
-            below += int(np.count_nonzero(z + half < shape.underside - TOLERANCE_M))
+            below += int(np.count_nonzero(z < shape.underside - TOLERANCE_M))
             if z.size and (best is None or z.size > best[0]):
                 best = (z.size, cluster, z)
         row: dict[str, Any] = {"frame": truth.frame_id, "id": oid, "cls": truth_cls(truth, oid),
@@ -116,7 +124,7 @@ def frame_rows(clusters: Clusters, truth: GroundTruthObjects, true_pose: F64, sh
         if best is None:
             row.update(underside=None, top=None, box_bottom=None, box_top=None, spans=False)
         else:
-            underside, top = float(best[2].min() - half), float(best[2].max() + half)
+            underside, top = float(best[2].min()), float(best[2].max())
             corners = np.array(list(itertools.product(*zip(best[1].bbox_min, best[1].bbox_max, strict=True))))
             z_box = (corners @ to_vehicle[:3, :3].T + to_vehicle[:3, 3])[:, 2] - base[2]
             row.update(underside=underside, top=top, box_bottom=float(z_box.min()), box_top=float(z_box.max()),
@@ -135,6 +143,7 @@ def measure(path: str | Path) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     info = rec.info()
     volume = volume_of(rec.config_dict(), info)
     shapes = overhangs(str(info["scenario"]), int(info["seed"]), volume.z_max)
+    road = build(str(info["scenario"]), int(info["seed"])).road
     clusters: dict[int, Clusters] = {}
     truths: dict[int, GroundTruthObjects] = {}
     poses: dict[int, F64] = {}
@@ -147,7 +156,7 @@ def measure(path: str | Path) -> tuple[list[dict[str, Any]], dict[str, Any]]:
             poses[msg.frame_id] = np.asarray(msg.pose, dtype=np.float64)
     rows = []
     for fid in sorted(set(clusters) & set(truths) & set(poses)):
-        rows += frame_rows(clusters[fid], truths[fid], poses[fid], shapes, volume)
+        rows += frame_rows(clusters[fid], truths[fid], poses[fid], shapes, volume, road)
     seen = [r for r in rows if r["underside"] is not None]
 
     def share(flags: list[bool]) -> float | None:
