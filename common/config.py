@@ -334,3 +334,15 @@ def load_config(
 def from_dict(values: dict[str, Any]) -> Config:
     """A configuration stored as a mapping (a recording's metadata) back into the tree."""
     return _apply(Config(), values)
+
+
+def recording_overrides(info: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """What a recording says of itself that every stage must follow: its volume (KITTI's is longer)
+    and its rig's settings (KITTI's disparity bias), by configuration section."""
+    settings: dict[str, dict[str, Any]] = {}
+    if isinstance(info.get("volume"), dict):
+        settings["volume"] = dict(info["volume"])
+    for section, values in (info.get("settings") or {}).items():
+        if isinstance(values, dict):
+            settings.setdefault(section, {}).update(values)
+    return settings

@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from common.config import recording_overrides
 from common.errors import StereovoxError
 from common.recording import open_recording
 from services.launch import Supervisor
@@ -42,11 +43,9 @@ def _free_port() -> int:
 
 
 def recording_settings(info: dict[str, Any]) -> list[str]:
-    """What a recording says of itself that every service must agree on (KITTI's longer volume)."""
-    volume = info.get("volume")
-    if not isinstance(volume, dict):
-        return []
-    return [arg for key, value in volume.items() for arg in ("--set", f"volume.{key}={value}")]
+    """``--set`` arguments for every service: what the recording says of itself (``config.recording_overrides``)."""
+    return [arg for section, values in recording_overrides(info).items() for key, value in values.items()
+            for arg in ("--set", f"{section}.{key}={value}")]
 
 
 def run_demo(recording: Path, out: Path, max_frames: int | None, timeout_s: float | None = None) -> Path:

@@ -12,9 +12,8 @@ import logging
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
 
-from common.config import Config, load_config
+from common.config import Config, load_config, recording_overrides
 from common.messages import (
     Clusters,
     Disparity,
@@ -96,12 +95,8 @@ class Pipeline:
 
 
 def config_for(reader: RecordingReader, file: str | None = None, sets: list[str] | None = None) -> Config:
-    """Defaults, then what the recording says of itself (e.g. KITTI's longer volume), then file and --set."""
-    info = reader.info()
-    base: dict[str, Any] = {}
-    if isinstance(info.get("volume"), dict):
-        base["volume"] = info["volume"]
-    return load_config(file, sets or [], base=base)
+    """Defaults, then what the recording says of itself, then file and --set."""
+    return load_config(file, sets or [], base=recording_overrides(reader.info()))
 
 
 def run_recording(

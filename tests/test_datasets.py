@@ -16,6 +16,7 @@ from common.evaluation.odometry import load_kitti_poses, odometry_errors
 from common.messages import GroundTruthDisparity, GroundTruthEgo, GroundTruthObjects, StereoFrame
 from common.recording import open_recording
 from services.cli import main as cli_main
+from services.pipeline import config_for
 
 DATE = ("data", "kitti_raw", "2011_09_26")
 DRIVE = (*DATE, "2011_09_26_drive_0009_sync")
@@ -62,6 +63,9 @@ def test_raw_import_frames_pose_lidar_and_info(tmp_path: Path) -> None:
     info = reader.info()
     assert info["source"] == "kitti-raw" and info["gt_complete"] is False and info["frames"] == 3
     assert reader.config_dict() is not None and "voxel" in reader.config_dict()  # the effective configuration
+    cfg = config_for(reader)  # what `process` runs with: the rig's disparity bias and KITTI's volume
+    assert (cfg.odometry.disparity_offset_px, cfg.odometry.disparity_edge_px, cfg.volume.x_max) == (0.16, 1.3, 45.0)
+    assert config_for(reader, sets=["odometry.disparity_offset_px=0"]).odometry.disparity_offset_px == 0.0
     assert info["volume"] == {"x_min": 0.0, "x_max": 45.0, "y_half": 10.0, "z_min": 0.0, "z_max": 3.5}
     assert np.allclose(info["calib"]["cam_to_vehicle"], [[0, 0, 1, 0], [-1, 0, 0, 0], [0, -1, 0, 1.65], [0, 0, 0, 1]])
     stamps = [msgs[StereoFrame][k].stamp_ns for k in range(3)]

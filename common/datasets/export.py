@@ -21,17 +21,28 @@ from common.recording import RecordingWriter
 #: KITTI's longer baseline and focal length see farther (EVALUATION.md).
 KITTI_VOLUME = VolumeConfig(x_min=0.0, x_max=45.0, y_half=10.0, z_min=0.0, z_max=3.5)
 FRAME_RATE_HZ: float = 10.0
+#: KITTI's disparities against its Velodyne (2011_09_26 rig, raw 0009 frames 0/25/50; OpenCV's SGBM
+#: shows the same): 0.16 px too small, more towards the image sides, which makes every depth and so
+#: the odometry's scale ~2.7 % too long. Odometry corrects for it; see docs/results/odometry.md.
+KITTI_SETTINGS: dict[str, dict[str, float]] = {"odometry": {"disparity_offset_px": 0.16, "disparity_edge_px": 1.3}}
 #: topic of each message type (every type has one topic).
 TOPIC_OF: dict[type[Message], str] = {cls: topic for topic, cls in TOPICS.items()}
 
 
 def recording_info(source: str, scenario: str, frames: int, calib: Calibration,
-                   volume: VolumeConfig | None = KITTI_VOLUME, **extra: Any) -> dict[str, Any]:
-    """The info metadata every importer stores (PREAMBLE's convention); real data is never complete."""
+                   volume: VolumeConfig | None = KITTI_VOLUME,
+                   settings: dict[str, dict[str, float]] | None = KITTI_SETTINGS, **extra: Any) -> dict[str, Any]:
+    """The info metadata every importer stores (PREAMBLE's convention); real data is never complete.
+
+    ``settings`` are configuration values that belong to the sensor rig rather than to a run;
+    ``process`` and ``demo`` apply them (under a user's ``--config`` and ``--set``).
+    """
     info: dict[str, Any] = {"source": source, "scenario": scenario, "gt_complete": False,
                             "frame_rate_hz": FRAME_RATE_HZ, "frames": frames, "calib": calibration_info(calib)}
     if volume is not None:
         info["volume"] = dataclasses.asdict(volume)
+    if settings:
+        info["settings"] = settings
     return {**info, **extra}
 
 

@@ -84,7 +84,7 @@ def import_scenes(folder: Path, out: Path, max_frames: int | None = None) -> int
     found = scenes(folder)[:max_frames]
     first = scene_messages(found[0], 0)
     calib = first[0].calib  # type: ignore[attr-defined]
-    info = recording_info("middlebury", ",".join(p.name for p in found), len(found), calib, volume=None,
+    info = recording_info("middlebury", ",".join(p.name for p in found), len(found), calib, volume=None, settings=None,
                           scenes=[p.name for p in found])
     frames = (first if k == 0 else scene_messages(scene, k) for k, scene in enumerate(found))
     return write_frames(out, info, frames, f"import middlebury {folder.name}")
