@@ -15,7 +15,7 @@ Each run is a fresh pair of processes and the topologies take turns, run after r
 spell on a shared machine hits every row alike; medians over the runs are reported. Namespaces
 need root; without it the two ``netns`` rows are left out and it says why. Both hosts share
 one clock here, so cross-host latency is exact; on a vehicle it is only as good as the clock
-synchronisation (deploy/README.md, "Clocks").
+synchronisation (deploy/README.md, "Time").
 """
 
 from __future__ import annotations

@@ -120,7 +120,10 @@ class Recorder:
         self._draining = threading.Event()
         self._thread = threading.Thread(target=self._write_loop, name="recorder-writer", daemon=True)
         self._thread.start()
-        self._sub = session.declare_subscriber(keys, self._on_sample)
+        # On Zenoh's own thread (not zenoh-python's default helper thread, whose queue holds some
+        # 256 samples of any size in front of ours): queue_mb is then the real bound, and "block"
+        # pushes back on the publishers at once.
+        self._sub = session.declare_subscriber(keys, zenoh.handlers.Callback(self._on_sample, indirect=False))
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         """The hot path: copy out of Zenoh, stamp, enqueue; nothing is decoded here."""

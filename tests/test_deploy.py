@@ -29,6 +29,7 @@ from common.config import BusConfig
 from common.evaluation.evaluate import evaluate_recording
 from common.messages import Obstacles, key_for
 from common.recording import open_recording
+from services.netns import two_namespaces
 from services.pipeline import process_file
 
 RECORDING = REPO / "recordings" / "urban.mcap"
@@ -129,38 +130,12 @@ def two_hosts() -> Iterator[tuple[list[str], list[str], str, str] | None]:
 
     Every name carries this process id, and the namespaces are deleted whatever happens.
     """
-    pid = os.getpid()
-    ns_a, ns_b, veth_a, veth_b = f"svdA{pid}", f"svdB{pid}", f"svda{pid}", f"svdb{pid}"
-    net = f"10.200.{pid % 250}"
-    steps = [
-        ["ip", "netns", "add", ns_a], ["ip", "netns", "add", ns_b],
-        ["ip", "link", "add", veth_a, "type", "veth", "peer", "name", veth_b],
-        ["ip", "link", "set", veth_a, "netns", ns_a], ["ip", "link", "set", veth_b, "netns", ns_b],
-        ["ip", "-n", ns_a, "addr", "add", f"{net}.1/24", "dev", veth_a],
-        ["ip", "-n", ns_b, "addr", "add", f"{net}.2/24", "dev", veth_b],
-        ["ip", "-n", ns_a, "link", "set", veth_a, "up"], ["ip", "-n", ns_b, "link", "set", veth_b, "up"],
-        ["ip", "-n", ns_a, "link", "set", "lo", "up"], ["ip", "-n", ns_b, "link", "set", "lo", "up"],
-    ]
-    try:
-        made = True
-        for step in steps:
-            try:
-                result = subprocess.run(step, capture_output=True, text=True, timeout=20)
-            except (OSError, subprocess.TimeoutExpired) as exc:
-                made, reason = False, f"{' '.join(step)}: {exc}"
-                break
-            if result.returncode != 0:
-                made, reason = False, f"{' '.join(step)}: {result.stderr.strip()}"
-                break
-        if made:
-            yield ["ip", "netns", "exec", ns_a], ["ip", "netns", "exec", ns_b], f"{net}.1", f"{net}.2"
-        else:
+    with two_namespaces("svd") as (hosts, reason):
+        if hosts is None:
             print(f"network namespaces unavailable ({reason})")
             yield None
-    finally:
-        for ns in (ns_a, ns_b):
-            subprocess.run(["ip", "netns", "del", ns], capture_output=True, timeout=20, check=False)
-        subprocess.run(["ip", "link", "del", veth_a], capture_output=True, timeout=20, check=False)
+        else:
+            yield hosts.prefix_a, hosts.prefix_b, hosts.addr_a, hosts.addr_b
 
 
 def _obstacle_rows(msg: Obstacles) -> list[tuple]:

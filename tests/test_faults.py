@@ -16,6 +16,7 @@ reported in docs/results/reliability.md against the goals (2 s, 10 %).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import signal
@@ -151,6 +152,16 @@ def start_launch(procs: Processes, spec: Path, tmp: Path, port: int, *extra: str
     return procs.start(cmd, "launch")
 
 
+def reap(procs: Processes, launch: subprocess.Popen[bytes]) -> None:
+    """Whatever happened: stop the launcher, then kill any service it left (each has a process group of its own)."""
+    if launch.poll() is None:
+        procs.stop(launch, signal.SIGINT, timeout=40)
+    for pid in launched_pids(procs.log(launch)).values():
+        with contextlib.suppress(OSError):
+            if b"services.cli" in Path(f"/proc/{pid}/cmdline").read_bytes():
+                os.killpg(pid, signal.SIGKILL)
+
+
 def client(port: int) -> BusConfig:
     return BusConfig(mode="client", connect=[f"tcp/127.0.0.1:{port}"], zenoh_config=str(DEPLOY / "zenoh/client.json5"))
 
@@ -182,8 +193,8 @@ def pipeline(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Pipeline]:
               "--wait-for", f"{STAGES},recorder"]
     spec = spec_with(tmp, "local.yaml", replay)
     procs, port = Processes(tmp), free_port()
+    launch = start_launch(procs, spec, tmp, port)
     try:
-        launch = start_launch(procs, spec, tmp, port)
         wait_for(lambda: "tracker" in launched_pids(procs.log(launch)) or launch.poll() is not None, 60,
                  "the launcher to start the services")
         with open_session(client(port)) as session:
@@ -193,6 +204,7 @@ def pipeline(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Pipeline]:
             finally:
                 observer.close()
     finally:
+        reap(procs, launch)
         procs.kill_all()
 
 
@@ -333,51 +345,54 @@ def _load(tmp: Path, procs: Processes, warm_s: float, seconds: float, capsys: py
     spec = spec_with(tmp, "live.yaml", replay)
     port = free_port()
     launch = start_launch(procs, spec, tmp, port)
-    wait_for(lambda: "camera_replay" in launched_pids(procs.log(launch)) or launch.poll() is not None, 90,
-             "the replay to start")
-    pids = launched_pids(procs.log(launch))
-    services = [s for s in pids if s != "router"]
-    with open_session(client(port)) as session:
-        obs = Observer(session)
-        wait_for(lambda: obs.count_since("tracker/obstacles", 0) >= 3 or launch.poll() is not None, 90,
-                 "obstacles under load")
-        warm_until = time.monotonic() + warm_s
-        samples: dict[str, list[tuple[float, int]]] = defaultdict(list)
-        end = warm_until + seconds
-        while time.monotonic() < end and launch.poll() is None:
-            now = time.monotonic()
+    try:
+        wait_for(lambda: "camera_replay" in launched_pids(procs.log(launch)) or launch.poll() is not None, 90,
+                 "the replay to start")
+        pids = launched_pids(procs.log(launch))
+        services = [s for s in pids if s != "router"]
+        with open_session(client(port)) as session:
+            obs = Observer(session)
+            wait_for(lambda: obs.count_since("tracker/obstacles", 0) >= 3 or launch.poll() is not None, 90,
+                     "obstacles under load")
+            warm_until = time.monotonic() + warm_s
+            samples: dict[str, list[tuple[float, int]]] = defaultdict(list)
+            end = warm_until + seconds
+            while time.monotonic() < end and launch.poll() is None:
+                now = time.monotonic()
+                for s in services:
+                    samples[s].append((now, rss_bytes(pids[s])))
+                time.sleep(0.5)
+            with obs.lock:
+                health = dict(obs.health)
+                frames = {t: len(v) for t, v in obs.frames.items()}
+                lag = {name: [(max(e for *_, e in m.timing) - m.timing[0][1]) / 1e9 for t, m in rows if t >= warm_until]
+                       for name, rows in (("odometry", obs.ego), ("tracker", obs.obstacles))}
+            obs.close()
+        assert launch.poll() is None, procs.log(launch)
+        assert launched_pids(procs.log(launch)) == pids, "a service was restarted under load"
+        assert procs.stop(launch) == 0, procs.log(launch)
+        assert "exited with" not in procs.log(launch)
+        growth = {}
+        with capsys.disabled():
+            print(f"\nload {warm_s:g} s warm-up + {seconds:g} s, camera flat out: {frames.get('camera/stereo', 0)} "
+                  f"camera frames, {frames.get('tracker/obstacles', 0)} obstacle reports; "
+                  "camera to output after warm-up, median/max: "
+                  + ", ".join(f"{n} {np.median(v):.1f}/{max(v):.1f} s" for n, v in lag.items() if v))
             for s in services:
-                samples[s].append((now, rss_bytes(pids[s])))
-            time.sleep(0.5)
-        with obs.lock:
-            health = dict(obs.health)
-            frames = {t: len(v) for t, v in obs.frames.items()}
-            lag = {name: [(max(e for *_, e in m.timing) - m.timing[0][1]) / 1e9 for t, m in rows if t >= warm_until]
-                   for name, rows in (("odometry", obs.ego), ("tracker", obs.obstacles))}
-        obs.close()
-    assert launch.poll() is None, procs.log(launch)
-    assert launched_pids(procs.log(launch)) == pids, "a service was restarted under load"
-    assert procs.stop(launch) == 0, procs.log(launch)
-    assert "exited with" not in procs.log(launch)
-    growth = {}
-    with capsys.disabled():
-        print(f"\nload {warm_s:g} s warm-up + {seconds:g} s, camera flat out: {frames.get('camera/stereo', 0)} "
-              f"camera frames, {frames.get('tracker/obstacles', 0)} obstacle reports; "
-              "camera to output after warm-up, median/max: "
-              + ", ".join(f"{n} {np.median(v):.1f}/{max(v):.1f} s" for n, v in lag.items() if v))
-        for s in services:
-            warm = [r for t, r in samples[s] if t >= warm_until]
-            first, last = float(np.median(warm[:4])), float(np.median(warm[-4:]))
-            growth[s] = last / first - 1
-            h = health.get(s)
-            drops = (f"dropped {h.dropped}, in {h.frames_in}, out {h.frames_out}, join evicted "
-                     f"{h.detail.get('join_evicted', '-')}") if h else "no health"
-            print(f"  {s:13s} RSS at start {samples[s][0][1] / MB:6.1f}, after warm-up {first / MB:6.1f} -> "
-                  f"{last / MB:6.1f} MB ({growth[s]:+.1%}), peak "
-                  f"{max(r for _, r in samples[s]) / MB:7.1f} MB; {drops}")
-    assert all(g < 0.5 for g in growth.values()), growth
-    assert health["stereo_depth"].dropped > 0, "stereo, the slowest stage, dropped nothing at max rate"
-    assert all(h.errors == 0 for h in health.values()), {s: h.last_error for s, h in health.items()}
+                warm = [r for t, r in samples[s] if t >= warm_until]
+                first, last = float(np.median(warm[:4])), float(np.median(warm[-4:]))
+                growth[s] = last / first - 1
+                h = health.get(s)
+                drops = (f"dropped {h.dropped}, in {h.frames_in}, out {h.frames_out}, join evicted "
+                         f"{h.detail.get('join_evicted', '-')}") if h else "no health"
+                print(f"  {s:13s} RSS at start {samples[s][0][1] / MB:6.1f}, after warm-up {first / MB:6.1f} -> "
+                      f"{last / MB:6.1f} MB ({growth[s]:+.1%}), peak "
+                      f"{max(r for _, r in samples[s]) / MB:7.1f} MB; {drops}")
+        assert all(g < 0.5 for g in growth.values()), growth
+        assert health["stereo_depth"].dropped > 0, "stereo, the slowest stage, dropped nothing at max rate"
+        assert all(h.errors == 0 for h in health.values()), {s: h.last_error for s, h in health.items()}
+    finally:
+        reap(procs, launch)
 
 
 @pytest.mark.timeout(240)
