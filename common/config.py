@@ -124,7 +124,7 @@ class VoxelConfig:
     min_cluster_voxels: int = 20  # smaller clusters are merged into a neighbour or dropped (measured: 4..24)
     min_density: float = 0.02  # voxels / bounding-box volume (in voxels)
     min_points_per_voxel: int = 8  # points a voxel gathered before it is clustered (measured: 2..8)
-    keep_frames: int = 0  # 0 = the paper: a voxel without points this frame is removed (1: more phantoms)
+    keep_frames: int = 0  # 0 = the paper: a voxel without points this frame is removed (1: trails merge objects)
     ground: str = "terrain"  # flat (z > ground_clearance) | terrain (height above local road)
     ground_clearance: float = 0.2
     terrain_slice: float = 1.0  # m of x per slice of the terrain height profile
@@ -159,6 +159,7 @@ class TrackerConfig:
     gate: float = 3.0  # association threshold on the weighted distance
     position_gate: float = 3.5  # pairs further apart than this many standard deviations never associate
     accept_frames: int = 2  # 3 lost 2-6 points of moving TP (pedestrians seen intermittently)
+    accept_misses: int = 0  # frames in a row a new track may go unseen before it is dropped (paper: 0)
     ghost_frames: int = 5
     moving_on_mps: float = 0.7  # evaluation: moving >= 1.0 m/s, stationary < 0.3 m/s
     moving_off_mps: float = 0.4

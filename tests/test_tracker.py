@@ -162,6 +162,20 @@ def test_acceptance_track_missing_one_frame_is_discarded() -> None:
     assert step(tracker, 2, []).obstacles == []
 
 
+def test_acceptance_allowance_keeps_a_new_track_through_one_missed_frame() -> None:
+    # a pedestrian the segmentation finds every other frame: frames seen count, the misses are forgiven
+    tracker = new_tracker(accept_frames=3, accept_misses=1)
+    first = step(tracker, 0, [cluster(0, (10.0, 0.0, 0.75))]).obstacles[0].id
+    assert step(tracker, 1, []).obstacles[0].state == "acceptance"
+    step(tracker, 2, [cluster(0, (10.0, 0.0, 0.75))])
+    step(tracker, 3, [])
+    (o,) = step(tracker, 4, [cluster(0, (10.0, 0.0, 0.75))]).obstacles
+    assert o.id == first and o.state == "tracked"
+    step(tracker, 5, [])
+    step(tracker, 6, [])
+    assert step(tracker, 7, []).obstacles[0].state == "ghost"
+
+
 def test_ghost_revived_keeps_its_id() -> None:
     tracker = new_tracker(accept_frames=2, ghost_frames=5)
     obj = [cluster(0, (10.0, 0.0, 0.75))]

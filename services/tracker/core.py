@@ -86,6 +86,7 @@ class Tracker:
         frame_period_s: float,
         jump_nis: float = float("inf"),
         fragment_margin: float = -1.0,
+        accept_misses: int = 0,
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -101,6 +102,7 @@ class Tracker:
         self.frame_period_s = frame_period_s
         self.jump_nis = jump_nis
         self.fragment_margin = fragment_margin
+        self.accept_misses = accept_misses
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.tracks = TrackTable()
         self.ego = EgoVelocity()
@@ -127,6 +129,7 @@ class Tracker:
             frame_period_s=t.frame_period_s,
             jump_nis=t.jump_nis,
             fragment_margin=t.fragment_margin,
+            accept_misses=t.accept_misses,
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
@@ -290,7 +293,8 @@ class Tracker:
     def _advance_queues(self, rows: NDArray, elapsed: int) -> None:
         seen = np.zeros(len(self.tracks), dtype=bool)
         seen[rows] = True
-        keep = advance(self.tracks, seen, elapsed, self.accept_frames, self.ghost_frames, self._inside_known(seen))
+        held = self._inside_known(seen)
+        keep = advance(self.tracks, seen, elapsed, self.accept_frames, self.ghost_frames, held, self.accept_misses)
         self.counters["tracks_dropped"] += int((~keep).sum())
         self.tracks.keep(keep)
 
