@@ -1,0 +1,90 @@
+"""Tracker time per frame with 50 obstacles, in process: ``python -m services.tracker.benchmark``.
+
+Fifty objects move through the volume of interest for 100 frames, each a cluster of the voxels
+a stereo camera sees of it (a pedestrian, a car's rear, a car's side: 28 to 216 voxels, as in
+the clusters of the synthetic urban runs, median 88), with centroid noise. The core runs with the
+default configuration; the median wall and CPU time of ``Tracker.process`` over frames 10-99 is
+printed per repeat. On a machine shared with other work, quote the median of the repeats.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from common.config import Config
+from common.messages import Cluster, Clusters, EgoMotion
+from services.tracker.core import Tracker
+
+EDGE = 0.25
+PERIOD_NS = 100_000_000
+#: visible extents (m) of what a camera sees of a pedestrian, a car's rear and a car's side.
+SHAPES = np.array([[0.5, 0.5, 1.75], [0.5, 1.75, 1.5], [4.5, 0.5, 1.5]])
+
+
+def box_cluster(cid: int, lo: np.ndarray, size: np.ndarray, rgb: np.ndarray) -> Cluster:
+    """The cluster of the voxels filling ``lo``..``lo + size``."""
+    axes = [np.arange(np.floor(a / EDGE), np.floor((a + s) / EDGE)) for a, s in zip(lo, size, strict=True)]
+    voxels = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3).astype(np.int32)
+    centres = (voxels + 0.5) * EDGE
+    return Cluster(
+        id=cid, voxels=voxels, voxel_count=len(voxels),
+        color_mean_rgb=rgb.astype(np.float32), color_var_rgb=np.zeros(3, np.float32),
+        color_mean_hsl=rgb.astype(np.float32), color_var_hsl=np.zeros(3, np.float32),
+        bbox_min=centres.min(axis=0) - EDGE / 2, bbox_max=centres.max(axis=0) + EDGE / 2,
+        centroid=centres.mean(axis=0), density=1.0, volume=len(voxels) * EDGE**3,
+    )  # fmt: skip
+
+
+def scene(frames: int, objects: int, seed: int) -> list[tuple[Clusters, EgoMotion]]:
+    rng = np.random.default_rng(seed)
+    start = np.column_stack([rng.uniform(3, 25, objects), rng.uniform(-7, 7, objects), np.full(objects, 0.25)])
+    velocity = np.column_stack([rng.uniform(-2, 2, (objects, 2)), np.zeros(objects)])
+    shape = SHAPES[rng.integers(0, len(SHAPES), objects)]
+    rgb = rng.uniform(0.1, 0.9, (objects, 3))
+    out = []
+    for k in range(frames):
+        lo = start + velocity * k * 0.1 + rng.normal(0.0, 0.05, (objects, 3)) * [1, 1, 0]
+        clusters = [box_cluster(i, lo[i], shape[i], rgb[i]) for i in range(objects)]
+        stamp = k * PERIOD_NS
+        out.append((
+            Clusters(frame_id=k, stamp_ns=stamp, clusters=clusters, voxel_edge=EDGE, world_epoch=0, ego_pose=np.eye(4)),
+            EgoMotion(frame_id=k, stamp_ns=stamp, pose=np.eye(4), valid=True, world_epoch=0),
+        ))  # fmt: skip
+    return out
+
+
+def measure(frames: list[tuple[Clusters, EgoMotion]]) -> tuple[float, float, int]:
+    """Median wall and CPU milliseconds per frame after a 10-frame warm-up, and obstacles at the end."""
+    tracker = Tracker.from_config(Config())
+    wall, cpu = [], []
+    for clusters, ego in frames:
+        w, c = time.perf_counter(), time.process_time()
+        out = tracker.process(clusters, ego)
+        wall.append(time.perf_counter() - w)
+        cpu.append(time.process_time() - c)
+    return float(np.median(wall[10:]) * 1e3), float(np.median(cpu[10:]) * 1e3), len(out.obstacles)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--objects", type=int, default=50)
+    parser.add_argument("--frames", type=int, default=100)
+    parser.add_argument("--repeats", type=int, default=5)
+    args = parser.parse_args()
+    frames = scene(args.frames, args.objects, seed=0)
+    voxels = [c.voxel_count for c in frames[0][0].clusters]
+    print(f"{args.objects} objects, voxels per cluster median {int(np.median(voxels))}, max {max(voxels)}")
+    walls, cpus = [], []
+    for r in range(args.repeats):
+        wall, cpu, n = measure(frames)
+        walls.append(wall)
+        cpus.append(cpu)
+        print(f"repeat {r}: median {wall:.2f} ms wall, {cpu:.2f} ms CPU per frame; {n} obstacles out")
+    print(f"median of repeats: {float(np.median(walls)):.2f} ms wall, {float(np.median(cpus)):.2f} ms CPU per frame")
+
+
+if __name__ == "__main__":
+    main()
