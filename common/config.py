@@ -158,7 +158,7 @@ class TrackerConfig:
     w_density: float = 0.5
     gate: float = 3.0  # association threshold on the weighted distance
     position_gate: float = 3.5  # pairs further apart than this many standard deviations never associate
-    accept_frames: int = 2  # 3 lost 2-6 points of moving TP (pedestrians seen intermittently)
+    accept_frames: int = 2  # 3: urban moving TP 3-6 points lower (pedestrians seen intermittently)
     accept_misses: int = 0  # frames in a row a new track may go unseen before it is dropped (paper: 0)
     ghost_frames: int = 5
     moving_on_mps: float = 0.7  # evaluation: moving >= 1.0 m/s, stationary < 0.3 m/s

@@ -4,8 +4,8 @@ The colour flood fill splits an object wherever its colour changes (a car's body
 a lorry's cab and box) and the split moves from frame to frame. One piece then keeps the track and
 the others start tracks of their own, which move with the object and are reported as extra moving
 obstacles, while the kept piece's centroid jumps as the pieces change (measured on synthetic
-urban, crossing and overtake, seeds 1-2: of the clusters that started a track beside an existing
-one, about half did so because that track had already taken another piece of the same object).
+urban, crossing and overtake, seeds 1-2: a third to a half of all new tracks started within 2 m
+of a track that had already taken another cluster that frame).
 
 A track knows how big its object was; every cluster whose centroid falls inside the track's
 predicted box (grown by ``margin``) is a piece of it, and two or more such pieces claimed by that
