@@ -251,9 +251,10 @@ def test_killed_service_comes_back_and_the_pipeline_goes_on(
         print(f"\nrestart: token back {back_at - killed_at:.2f} s after SIGKILL, first new obstacles after "
               f"{first_after[0] - killed_at:.2f} s; frame ids {last_before} -> {first_after[1]} "
               f"(usual step {normal_gap:g})")
+    wait_for(lambda: re.search(r"tracker=up\(pid \d+, r1, exit -9\)", processes.log(launch)) is not None, 15,
+             "a status line showing the restart")
     assert processes.stop(launch) == 0
     assert re.search(r"tracker\s+alive again [\d.]+ s after it died", processes.log(launch))
-    assert re.search(r"tracker=up\(pid \d+, r1, exit -9\)", processes.log(launch)), "no status line shows the restart"
 
 
 def _pids(processes: Processes, launch: subprocess.Popen[bytes]) -> dict[str, int]:
