@@ -91,7 +91,12 @@ class Received(Generic[M]):
 
 
 class _Subscriber(ABC, Generic[M]):
-    """Common part: decode in the Zenoh callback, count bad payloads, hand good ones to a buffer."""
+    """Common part: decode in the Zenoh callback, count bad payloads, hand good ones to a buffer.
+
+    A full FIFO blocks that callback and so the session's delivery: a slow consumer slows its
+    sender instead of queueing without bound. The stage loop drains every input into its joiner,
+    so one full input never starves another of the same process for long.
+    """
 
     def __init__(
         self, session: zenoh.Session, key: str, expected: type[M] | None, wakeup: threading.Event | None = None
@@ -106,7 +111,10 @@ class _Subscriber(ABC, Generic[M]):
         #: set after every delivered message, so one thread can wait on several subscribers at once.
         self.wakeup = wakeup
         self._closed = threading.Event()
-        self._sub = session.declare_subscriber(key, self._on_sample)
+        # Called on Zenoh's own delivery thread (indirect=False). The default hands samples to a
+        # helper thread through a ~256-message queue, which for camera frames is ~470 MB sitting in
+        # front of a FIFO of 8 before any back-pressure reaches the sender (docs/results/reliability.md).
+        self._sub = session.declare_subscriber(key, zenoh.handlers.Callback(self._on_sample, indirect=False))
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         try:
