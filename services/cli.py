@@ -14,6 +14,7 @@ import sys
 from collections.abc import Sequence
 
 from common.errors import StereovoxError
+from common.lifeline import follow_supervisor
 
 #: sub-command -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -55,6 +56,7 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    follow_supervisor()
     args_list = list(sys.argv[1:] if argv is None else argv)
     args = build_parser(args_list).parse_args(args_list)
     logging.basicConfig(

@@ -29,6 +29,7 @@ import zenoh
 from common.bus import open_session, watch_alive
 from common.config import BusConfig
 from common.errors import ConfigError
+from common.lifeline import SUPERVISOR_ENV
 from services.launch_spec import LaunchSpec, ServiceSpec, endpoint_address
 
 log = logging.getLogger("stereovox.launch")
@@ -95,7 +96,8 @@ class Supervisor:
         self._watch: zenoh.Subscriber | None = None
 
     def _spawn(self, child: Child) -> None:
-        env = {**self.env, RESTARTS_ENV: str(child.restarts)}  # a restarted recorder must not overwrite its file
+        env = {**self.env, RESTARTS_ENV: str(child.restarts),  # a restarted recorder must not overwrite its file
+               SUPERVISOR_ENV: str(os.getpid())}  # and every child ends with this process (common/lifeline.py)
         with open(child.log_path, "ab") as logf:
             child.proc = subprocess.Popen(
                 child.argv, stdout=logf, stderr=subprocess.STDOUT, env=env, start_new_session=True

@@ -6,6 +6,7 @@ lossless wire make the distributed run as deterministic as the in-process one.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -15,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import REPO, stereovox_cmd
+from conftest import REPO, stereovox_cmd, wait_for
 
 from common.messages import Obstacles
 from common.recording import open_recording
@@ -103,6 +104,33 @@ def test_demo_names_a_stage_that_dies(tmp_path: Path) -> None:
     assert "stage tracker died" in err
     for name, pid in pids.items():
         assert not _alive(pid), f"{name} (pid {pid}) outlived the demo"
+
+
+@pytest.mark.timeout(300)
+def test_services_end_with_a_killed_demo(tmp_path: Path) -> None:
+    """SIGKILL the demo itself (no chance to clean up): every service it started ends on its own."""
+    proc = subprocess.Popen(
+        stereovox_cmd("demo", "--max-frames", str(FRAMES), "--out", str(tmp_path)),
+        cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True,
+    )
+    pids: dict[str, int] = {}
+    try:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            match = re.search(r"(\w+)\s+started pid (\d+)", line)
+            if match:
+                pids[match.group(1)] = int(match.group(2))
+            if "all services alive" in line:
+                break
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(10)
+        wait_for(lambda: not any(_alive(pid) for pid in pids.values()), 30, "the services to follow their supervisor")
+    finally:
+        for pid in pids.values():  # only reached when the test failed: leave nothing behind
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(pid, signal.SIGKILL)
+    assert {"router", "stereo_depth", "odometry", "voxel_mapper", "tracker", "recorder"} <= set(pids)
+    assert open_recording(tmp_path / "run.mcap").info()  # the recorder stopped cleanly: its file reads
 
 
 def _alive(pid: int) -> bool:
