@@ -21,6 +21,7 @@ from services.odometry.features import Features
 Index = npt.NDArray[np.intp]
 _NONE = -1
 _SHIFT = 22  # bits kept for an index inside the packed (distance, index) key
+SAD_CHUNK = 65536  # descriptor pairs compared at once (bounds the memory of a search without prior)
 
 
 def candidate_pairs(
@@ -58,11 +59,17 @@ def candidate_pairs(
 
 
 def sad(a: npt.NDArray[np.uint8], b: npt.NDArray[np.uint8], ia: Index, ib: Index) -> npt.NDArray[np.int64]:
-    """Sum of absolute descriptor differences for the pairs (ia[k], ib[k])."""
-    if len(ia) == 0:
-        return np.zeros(0, dtype=np.int64)
-    diff = cv2.absdiff(a.take(ia, axis=0), b.take(ib, axis=0))
-    return cv2.reduce(diff, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel().astype(np.int64)
+    """Sum of absolute descriptor differences for the pairs (ia[k], ib[k]).
+
+    In slices of ``SAD_CHUNK`` pairs: a search without a motion prior (a lost track, a replay
+    that loops) forms about a million pairs, whose gathered descriptors alone took 230 MB at once.
+    """
+    out = np.empty(len(ia), dtype=np.int64)
+    for start in range(0, len(ia), SAD_CHUNK):
+        part = slice(start, start + SAD_CHUNK)
+        diff = cv2.absdiff(a.take(ia[part], axis=0), b.take(ib[part], axis=0))
+        out[part] = cv2.reduce(diff, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel()
+    return out
 
 
 def best_of(group: Index, other: Index, cost: npt.NDArray[np.int64], size: int) -> Index:
