@@ -24,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.errors import DecodeError
+from common.message_checks import check_consistent, check_finite
 from common.wire_arrays import (
     MAX_ARRAY_BYTES,
     pack_array,
@@ -404,38 +405,6 @@ def _check_scalar(value: Any, hint: Any, where: str) -> Any:
 
 _MISSING = object()
 
-#: float arrays where a non-finite value means something: NaN disparity is "no match", an infinite
-#: covariance "unknown". Everywhere else NaN or inf is refused: one NaN in a pose or a point spreads
-#: through every later frame of a stage's state.
-NAN_FIELDS: frozenset[str] = frozenset({"disparity"})
-INF_FIELDS: frozenset[str] = frozenset({"covariance", "position_cov", "velocity_cov"})
-
-
-def _check_finite(arr: NDArray, name: str, where: str) -> None:
-    if arr.dtype.kind != "f" or name in NAN_FIELDS:
-        return
-    bad = np.isnan(arr) if name in INF_FIELDS else ~np.isfinite(arr)
-    if bad.any():
-        raise DecodeError(f"{where}: {int(bad.sum())} non-finite value(s)")
-
-
-def _check_consistent(msg: Message, where: str) -> None:
-    """Facts between fields that every stage relies on: sizes that agree, a calibration one can divide by."""
-    if msg.frame_id < 0 or msg.stamp_ns < 0:
-        raise DecodeError(f"{where}: negative frame_id {msg.frame_id} or stamp_ns {msg.stamp_ns}")
-    calib = getattr(msg, "calib", None)
-    if isinstance(calib, Calibration) and (
-        min(calib.fx, calib.fy, calib.baseline) <= 0 or min(calib.width, calib.height) <= 0
-    ):
-        raise DecodeError(f"{where}.calib: focal lengths, baseline and image size must be positive")
-    if isinstance(msg, StereoFrame):
-        size = (msg.calib.height, msg.calib.width)
-        if msg.left.shape[:2] != size or msg.right.shape[:2] != size:
-            raise DecodeError(f"{where}: images of {msg.left.shape[:2]} and {msg.right.shape[:2]}, calibration {size}")
-    if isinstance(msg, PointCloud) and len(msg.points) != len(msg.colors):
-        raise DecodeError(f"{where}: {len(msg.points)} points but {len(msg.colors)} colours")
-
-
 def _from_wire(cls: type, value: Any, where: str) -> Any:
     if not isinstance(value, dict):
         raise DecodeError(f"{where}: expected a map for {cls.__name__}, got {type(value).__name__}")
@@ -453,7 +422,7 @@ def _from_wire(cls: type, value: Any, where: str) -> Any:
                 kwargs[f.name] = unpack_image(raw, sub)
             else:
                 kwargs[f.name] = unpack_array(raw, sub, f.metadata["dtype"], f.metadata["shape"])
-                _check_finite(kwargs[f.name], f.name, sub)
+                check_finite(kwargs[f.name], f.name, sub)
             continue
         kwargs[f.name] = _convert(hints[f.name], raw, sub)
     return cls(**kwargs)
@@ -504,7 +473,7 @@ def decode(data: bytes | bytearray | memoryview, expected: type[M] | None = None
         raise DecodeError(f"got {schema} where {expected.SCHEMA} was expected")
     try:
         msg = _from_wire(cls, body, schema)
-        _check_consistent(msg, schema)
+        check_consistent(msg, schema)
     except DecodeError:
         raise
     except Exception as exc:  # a value the dataclass or numpy refuses

@@ -35,7 +35,7 @@ from common.messages import (
 )
 
 Wire = dict[str, Any]
-#: fields where a non-finite float is a value (see messages.NAN_FIELDS / INF_FIELDS).
+#: fields where a non-finite float is a value (see message_checks.NAN_FIELDS / INF_FIELDS).
 NON_FINITE_OK = {"disparity", "covariance", "position_cov", "velocity_cov"}
 CROP = (96, 128)  # rows, columns of the shrunk images
 
