@@ -73,26 +73,28 @@ def test_process_and_demo_give_identical_obstacles(demo_run: tuple[Path, dict], 
         assert _obstacle_rows(distributed[frame_id]) == _obstacle_rows(in_process[frame_id]), frame_id
 
 
+def _demo_until_alive(out: Path) -> tuple[subprocess.Popen[str], dict[str, int]]:
+    """Start a demo and read its log until every service is alive; the pid of each service."""
+    proc = subprocess.Popen(
+        stereovox_cmd("demo", "--max-frames", str(FRAMES), "--out", str(out)),
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+    )
+    pids: dict[str, int] = {}
+    assert proc.stderr is not None
+    for line in proc.stderr:
+        match = re.search(r"(\w+)\s+started pid (\d+)", line)
+        if match:
+            pids[match.group(1)] = int(match.group(2))
+        if "all services alive" in line:
+            break
+    return proc, pids
+
+
 @pytest.mark.timeout(300)
 def test_demo_names_a_stage_that_dies(tmp_path: Path) -> None:
     """SIGKILL the tracker mid-run: the demo stops every process and exits non-zero naming it."""
-    proc = subprocess.Popen(
-        stereovox_cmd("demo", "--max-frames", str(FRAMES), "--out", str(tmp_path)),
-        cwd=REPO,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-    )
-    pids: dict[str, int] = {}
+    proc, pids = _demo_until_alive(tmp_path)
     try:
-        assert proc.stderr is not None
-        for line in proc.stderr:
-            match = re.search(r"(\w+)\s+started pid (\d+)", line)
-            if match:
-                pids[match.group(1)] = int(match.group(2))
-            if "all services alive" in line:
-                break
         assert "tracker" in pids, f"no tracker started: {pids}"
         os.kill(pids["tracker"], signal.SIGKILL)
         _, err = proc.communicate(timeout=200)
@@ -109,19 +111,8 @@ def test_demo_names_a_stage_that_dies(tmp_path: Path) -> None:
 @pytest.mark.timeout(300)
 def test_services_end_with_a_killed_demo(tmp_path: Path) -> None:
     """SIGKILL the demo itself (no chance to clean up): every service it started ends on its own."""
-    proc = subprocess.Popen(
-        stereovox_cmd("demo", "--max-frames", str(FRAMES), "--out", str(tmp_path)),
-        cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True,
-    )
-    pids: dict[str, int] = {}
+    proc, pids = _demo_until_alive(tmp_path)
     try:
-        assert proc.stderr is not None
-        for line in proc.stderr:
-            match = re.search(r"(\w+)\s+started pid (\d+)", line)
-            if match:
-                pids[match.group(1)] = int(match.group(2))
-            if "all services alive" in line:
-                break
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(10)
         wait_for(lambda: not any(_alive(pid) for pid in pids.values()), 30, "the services to follow their supervisor")
