@@ -398,7 +398,7 @@ def surface(lo: tuple[float, float, float], hi: tuple[float, float, float], cid:
 def test_anchor_stays_on_the_faces_in_view_while_the_far_side_grows() -> None:
     # a parked car right of the road: its rear (near x) and its road side (high y) face the camera
     short, long = surface((20.0, -4.0, 0.25), (21.0, -2.25, 1.5)), surface((20.0, -4.0, 0.25), (24.5, -2.25, 1.5))
-    points, side = anchors([short, long], np.array([short.centroid, long.centroid]), np.eye(4), EDGE)
+    points, side, _ = anchors([short, long], np.array([short.centroid, long.centroid]), np.eye(4), EDGE)
     assert side.tolist() == [2, 2]
     a, b = points[0, 2], points[1, 2]
     assert abs(a[0] - b[0]) < 0.3 and abs(a[1] - b[1]) < 0.01  # the centroids are 1.75 m apart
@@ -435,7 +435,9 @@ def test_pieces_of_a_known_object_stay_one_track() -> None:
 
 def test_a_cluster_that_changes_shape_does_not_give_a_static_object_speed() -> None:
     # 25 m ahead the centroid is good to 0.15 m across the line of sight; from frame 12 on the
-    # cluster takes in a piece of its neighbour and its centroid steps 0.8 m sideways for good
+    # cluster takes in a piece of its neighbour and its centroid steps 0.8 m sideways for good.
+    # Read as motion that step is 8 m/s; re-anchored, the velocity is unknown again and re-learnt
+    # from the noise, as a new track's is (0.42 m/s at its second frame here), then settles.
     rng = np.random.default_rng(9)
     tracker = new_tracker()
     for k in range(30):
@@ -443,5 +445,32 @@ def test_a_cluster_that_changes_shape_does_not_give_a_static_object_speed() -> N
         centre[1] += 0.8 * (k >= 12)
         out = step(tracker, k, [cluster(0, centre, size=(1.0, 1.0, 1.5))])
         (o,) = out.obstacles
-        assert not o.moving and (k < 12 or o.speed < 0.3), (k, o.speed)
+        assert not o.moving and o.speed < 0.5 and (k < 18 or o.speed < 0.15), (k, o.speed)
     assert tracker.counters["tracks_born"] == 1
+
+
+def test_structure_uncovered_at_its_near_end_stays_stationary() -> None:
+    # a hedge beside the road, its far end fixed at 45 m; a parked car in front of it hid its near
+    # end and uncovers it at 5 m/s for 0.6 s, then it stands still in full view (KITTI 0001 had
+    # such tracks reported at 3-7 m/s, moving, for 10-20 frames after their faces had stopped)
+    tracker = new_tracker()
+    for k in range(30):
+        near = 41.0 - 0.5 * min(max(k - 4, 0), 6)
+        out = step(tracker, k, [surface((near, 6.0, 0.25), (45.0, 7.5, 1.5))])
+        (o,) = out.obstacles
+        assert not o.moving, (k, o.speed)
+
+
+def test_oncoming_car_seen_with_range_noise_is_called_moving_within_seven_frames() -> None:
+    # 35 m ahead, closing at 6 m/s over ground; both ends of it move, each by 0.6 m a frame, with
+    # the range noise of stereo at that distance (0.5 m) on top
+    rng = np.random.default_rng(4)
+    cfg = Config()
+    cfg.volume.x_max, cfg.volume.y_half = 45.0, 10.0  # KITTI's volume: 35 m is inside it
+    tracker = Tracker.from_config(cfg)
+    labelled = []
+    for k in range(12):
+        front = 35.0 - 0.6 * k + rng.normal(scale=0.5)
+        out = step(tracker, k, [surface((front, 3.0, 0.25), (front + 4.0, 4.75, 1.5))])
+        labelled += [o.moving for o in out.obstacles]
+    assert any(labelled[:8]), labelled

@@ -63,11 +63,28 @@ def slide_speed(extent: NDArray, extent_slow: NDArray, period_s: float, voxel_ed
     return 0.5 * np.linalg.norm(growth, axis=1) / lag
 
 
-def label(moving: NDArray, speed: NDArray, sigma: NDArray, slide: NDArray, age: NDArray, rule: Hysteresis) -> NDArray:
-    """New moving flags from the previous ones."""
+def label(
+    moving: NDArray,
+    speed: NDArray,
+    sigma: NDArray,
+    slide: NDArray,
+    age: NDArray,
+    rule: Hysteresis,
+    confirm: NDArray | None = None,
+) -> NDArray:
+    """New moving flags from the previous ones.
+
+    ``confirm`` is a second lower bound on the speed (motion_window.py), -inf where it has no
+    opinion yet: turning moving needs it above ``on`` as well, and a moving track whose window
+    falls below ``off`` turns stationary; without an opinion the filter's bound decides alone.
+    """
     bound = speed - rule.sigma_k * sigma - slide
     turn_on = (bound > rule.on) & (age >= rule.min_frames)
-    return np.where(moving, bound >= rule.off, turn_on)
+    stay = bound >= rule.off
+    if confirm is not None:
+        turn_on &= confirm > rule.on
+        stay &= np.isneginf(confirm) | (confirm >= rule.off)
+    return np.where(moving, stay, turn_on)
 
 
 class EgoVelocity:

@@ -14,6 +14,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from services.tracker.motion_window import SIZE as WINDOW
+
 NDArray = npt.NDArray[Any]
 
 ACCEPTANCE, TRACKED, GHOST = 0, 1, 2
@@ -48,6 +50,10 @@ class TrackTable:
     centroid: NDArray = _empty(3)  # last cluster's
     bbox_min: NDArray = _empty(3)
     bbox_max: NDArray = _empty(3)
+    window: NDArray = _empty(WINDOW, 2)  # last faces followed, world x, y (motion_window.py)
+    window_far: NDArray = _empty(WINDOW, 2)  # the far ends of the same clusters
+    window_t: NDArray = _empty(WINDOW)  # their times (s, tracker clock)
+    window_n: NDArray = _empty(dtype=np.int64)  # how many of them belong to the current cluster shape
 
     def __len__(self) -> int:
         return int(self.ids.shape[0])
