@@ -10,12 +10,11 @@ its speed. Everything lives in the world frame of the odometry, so a velocity is
 The filter follows a cluster's faces turned to the camera (anchor.py), not its centroid, which
 slides as more or less of the object comes into view; the reported centroid is still the
 cluster's. A measurement further from the prediction than ``jump_nis`` allows is a cluster that
-changed shape (split, merged, another face in view): it re-anchors the position and keeps the
-velocity's value, since the step says nothing about how the object moves, but not its confidence:
-what was learnt from the old shape is no longer vouched for, so the velocity's covariance goes back
-to a new track's and the next frames can correct it (kept confident, a velocity learnt from a slide
-was carried on for 10-20 frames on KITTI tracking 0001). The moving label also needs the slope of
-the track's last faces, near and far ends both, to agree (motion_window.py).
+changed shape (split, merged, another face in view): it re-anchors the position and leaves the
+velocity alone, since the step says nothing about how the object moves. The velocity so kept can
+be stale (learnt from a face that slid, then carried on by re-anchoring: on KITTI tracking 0001
+static structures kept 3-6 m/s for 10-20 frames), so the moving label also needs the slope of the
+track's last faces, near and far ends both, to agree (motion_window.py).
 
 Bad input is handled where it arrives and counted in ``counters``: clusters with non-finite
 geometry are dropped (``nan_clusters``); a frame whose id is not newer than the last is ignored
@@ -270,8 +269,7 @@ class Tracker:
         p[jump, 0:3, 0:3] = r[jump]
         p[jump, 0:3, 3:6] = 0.0
         p[jump, 3:6, 0:3] = 0.0
-        # and the velocity learnt from the old shape is no longer vouched for: unknown again
-        p[jump, 3:6, 3:6] = np.maximum(p[jump, 3:6, 3:6], np.diag(self.velocity_var))
+        # and the faces of the old shape say nothing about the new one's motion
         motion_window.restart(t.window_n, rows[jump])
         motion_window.push(t.window, t.window_t, t.window_n, rows, obs.anchor, self._clock)
         motion_window.push(t.window_far, t.window_t.copy(), t.window_n.copy(), rows, obs.anchor + obs.far, self._clock)
