@@ -133,6 +133,7 @@ class VoxelConfig:
     bridge_voxels: int = 3  # a gap along the line of sight up to this many voxels still links two parts
     points_range_m: float = 15.0  # beyond this range min_points_per_voxel falls with range squared (0 = fixed)
     min_points_far: int = 2  # ... but never below this
+    join_min_voxels: int = 6  # smallest parts joined into one object (0 = min_cluster_voxels; measured 4..20)
 
 
 @dataclass

@@ -126,6 +126,19 @@ def test_lone_noise_voxel_is_removed() -> None:
                                                     ego()).clusters) == 2
 
 
+def test_a_walker_of_two_small_colours_is_one_cluster() -> None:
+    """Coat and trousers, 12 voxels each: parts below the noise limit are joined before it applies."""
+    coat = box((10.05, -0.2, 1.0), (10.3, 0.2, 1.7), RED)
+    legs = box((10.05, -0.2, 0.3), (10.3, 0.2, 0.95), BLUE)
+    parts = mapper(min_cluster_voxels=1, join_share=2.0).process(cloud(road(), coat, legs), ego())
+    assert sorted(c.voxel_count for c in parts.clusters) == [12, 12]
+    assert mapper(join_min_voxels=20).process(cloud(road(), coat, legs), ego()).clusters == []  # dropped as noise
+    out = mapper().process(cloud(road(), coat, legs), ego())
+    assert len(out.clusters) == 1 and out.clusters[0].voxel_count == 24
+    assert out.clusters[0].bbox_min[2] == pytest.approx(0.3, abs=0.1)
+    assert out.clusters[0].bbox_max[2] == pytest.approx(1.7, abs=0.1)
+
+
 def test_small_cluster_touching_a_big_one_is_merged() -> None:
     rng = np.random.default_rng(4)
     patch_pts = (np.array([8.05, 0.05, 1.05]) + rng.random((40, 3)) * 0.15).astype(np.float32)  # one cell

@@ -46,7 +46,8 @@ class VoxelMapper:
     def __init__(self, *, edge: float, volume: VolumeConfig, ground: Ground, epsilon: float,
                  min_cluster_voxels: int, min_density: float, min_points_per_voxel: int = 1,
                  keep_frames: int = 0, ground_clearance: float = 0.2, join_share: float = 0.3,
-                 bridge_voxels: int = 3, points_range_m: float = 0.0, min_points_far: int = 2) -> None:
+                 bridge_voxels: int = 3, points_range_m: float = 0.0, min_points_far: int = 2,
+                 join_min_voxels: int = 0) -> None:
         if edge <= 0.0:
             raise ConfigError(f"voxel.edge must be > 0, got {edge}")
         self.map = VoxelMap(edge, keep_frames)
@@ -61,6 +62,7 @@ class VoxelMapper:
         self.bridge_voxels = bridge_voxels
         self.points_range = points_range_m
         self.min_points_far = min_points_far
+        self.join_min = join_min_voxels if join_min_voxels > 0 else min_cluster_voxels
         self.epoch: int | None = None
 
     @classmethod
@@ -77,7 +79,8 @@ class VoxelMapper:
                    min_cluster_voxels=v.min_cluster_voxels, min_density=v.min_density,
                    min_points_per_voxel=v.min_points_per_voxel, keep_frames=v.keep_frames,
                    ground_clearance=v.ground_clearance, join_share=v.join_share, bridge_voxels=v.bridge_voxels,
-                   points_range_m=v.points_range_m, min_points_far=v.min_points_far)
+                   points_range_m=v.points_range_m, min_points_far=v.min_points_far,
+                   join_min_voxels=v.join_min_voxels)
 
     def process(self, cloud: PointCloud, ego: EgoMotion) -> Clusters:
         """Update the map with one frame and cluster the voxels above the road."""
@@ -88,7 +91,7 @@ class VoxelMapper:
         road = self.ground.fit(points)
         candidate = self._above_road(road, ego.pose)
         labels, n_clusters = flood_fill(self.map, candidate, self.epsilon)
-        labels = join_parts(self.map, labels, n_clusters, ego.pose[:3, 3], self.min_cluster_voxels,
+        labels = join_parts(self.map, labels, n_clusters, ego.pose[:3, 3], self.join_min,
                             self.join_share, self.bridge_voxels)
         labels = aggregate(labels, n_clusters, touching_pairs(self.map, labels), self.min_cluster_voxels)
         labels = remove_noise(labels, self.map.coords, n_clusters, self.min_cluster_voxels, self.min_density)
