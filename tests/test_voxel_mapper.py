@@ -139,6 +139,19 @@ def test_a_walker_of_two_small_colours_is_one_cluster() -> None:
     assert out.clusters[0].bbox_max[2] == pytest.approx(1.7, abs=0.1)
 
 
+def test_a_walker_before_a_facade_of_his_colour_is_cut_off_by_the_skyline() -> None:
+    """Same grey, 0.15 m apart: one flood-fill cluster, but his columns end at 1.75 m, the facade's at 3.2."""
+    facade = box((8.0, 3.0, 0.0), (16.0, 3.3, 3.2), GREY)
+    walker = box((11.0, 2.35, 0.0), (11.3, 2.85, 1.75), GREY, seed=7)
+    assert len(mapper(cut_tall_m=0.0).process(cloud(road(), facade, walker), ego()).clusters) == 1
+    out = mapper().process(cloud(road(), facade, walker), ego())
+    assert len(out.clusters) == 2
+    small = out.clusters[1]
+    assert small.centroid[:2] == pytest.approx((11.15, 2.6), abs=0.15)
+    assert small.bbox_max[2] == pytest.approx(1.75, abs=0.2)
+    assert out.clusters[0].bbox_min[1] > 2.85 - 0.1  # the facade keeps none of him
+
+
 def test_small_cluster_touching_a_big_one_is_merged() -> None:
     rng = np.random.default_rng(4)
     patch_pts = (np.array([8.05, 0.05, 1.05]) + rng.random((40, 3)) * 0.15).astype(np.float32)  # one cell

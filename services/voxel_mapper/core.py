@@ -3,7 +3,8 @@
 ``VoxelMapper.process(cloud, ego)`` reads as the paper: follow the world epoch, update the map with
 this frame's points brought into the world (Sect. IV-A), find the road, select the voxels above it
 inside the volume of interest, flood-fill them by colour (Alg. IV-B.1, Eq. 1), join the parts of
-one object (an addition, see ``linkage``), aggregate small clusters (Alg. IV-B.2), remove noise
+one object (an addition, see ``linkage``), cut low objects off tall structures they were filled
+into (an addition, see ``skyline``), aggregate small clusters (Alg. IV-B.2), remove noise
 (Alg. IV-B.3) and describe what is left.
 
 World-state policy: a new ``world_epoch`` resets the map (its world frame is gone). An invalid
@@ -33,6 +34,7 @@ from common.messages import Clusters, EgoMotion, PointCloud
 from services.voxel_mapper.flood_fill import flood_fill, touching_pairs
 from services.voxel_mapper.linkage import join_parts
 from services.voxel_mapper.refinement import aggregate, remove_noise
+from services.voxel_mapper.skyline import cut_low_parts
 from services.voxel_mapper.summary import describe
 from services.voxel_mapper.terrain import FlatGround, TerrainProfile
 from services.voxel_mapper.voxel_map import VoxelMap
@@ -47,7 +49,8 @@ class VoxelMapper:
                  min_cluster_voxels: int, min_density: float, min_points_per_voxel: int = 1,
                  keep_frames: int = 0, ground_clearance: float = 0.2, join_share: float = 0.3,
                  bridge_voxels: int = 3, points_range_m: float = 0.0, min_points_far: int = 2,
-                 join_min_voxels: int = 0) -> None:
+                 join_min_voxels: int = 0, cut_tall_m: float = 0.0, cut_low_m: float = 2.2,
+                 cut_min_voxels: int = 12) -> None:
         if edge <= 0.0:
             raise ConfigError(f"voxel.edge must be > 0, got {edge}")
         self.map = VoxelMap(edge, keep_frames)
@@ -63,6 +66,7 @@ class VoxelMapper:
         self.points_range = points_range_m
         self.min_points_far = min_points_far
         self.join_min = join_min_voxels if join_min_voxels > 0 else min_cluster_voxels
+        self.cut = (cut_tall_m, cut_low_m, cut_min_voxels)
         self.epoch: int | None = None
 
     @classmethod
@@ -80,7 +84,8 @@ class VoxelMapper:
                    min_points_per_voxel=v.min_points_per_voxel, keep_frames=v.keep_frames,
                    ground_clearance=v.ground_clearance, join_share=v.join_share, bridge_voxels=v.bridge_voxels,
                    points_range_m=v.points_range_m, min_points_far=v.min_points_far,
-                   join_min_voxels=v.join_min_voxels)
+                   join_min_voxels=v.join_min_voxels, cut_tall_m=v.cut_tall_m, cut_low_m=v.cut_low_m,
+                   cut_min_voxels=v.cut_min_voxels)
 
     def process(self, cloud: PointCloud, ego: EgoMotion) -> Clusters:
         """Update the map with one frame and cluster the voxels above the road."""
@@ -89,10 +94,12 @@ class VoxelMapper:
         self.map.integrate(points, colors, ego.pose)
         self.map.forget_unseen()
         road = self.ground.fit(points)
-        candidate = self._above_road(road, ego.pose)
+        candidate, height = self._above_road(road, ego.pose)
         labels, n_clusters = flood_fill(self.map, candidate, self.epsilon)
         labels = join_parts(self.map, labels, n_clusters, ego.pose[:3, 3], self.join_min,
                             self.join_share, self.bridge_voxels)
+        if self.cut[0] > 0.0:
+            labels, n_clusters = cut_low_parts(labels, n_clusters, self.map.coords, height, *self.cut)
         labels = aggregate(labels, n_clusters, touching_pairs(self.map, labels), self.min_cluster_voxels)
         labels = remove_noise(labels, self.map.coords, n_clusters, self.min_cluster_voxels, self.min_density)
         return Clusters(frame_id=cloud.frame_id, stamp_ns=cloud.stamp_ns, clusters=describe(self.map, labels),
@@ -119,12 +126,15 @@ class VoxelMapper:
         scale = np.minimum(1.0, (self.points_range / np.maximum(np.hypot(local[:, 0], local[:, 1]), 1e-3)) ** 2)
         return np.maximum(self.min_points_far, self.min_points * scale)
 
-    def _above_road(self, road: Ground, pose: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
-        """Voxels inside the volume of interest and above the road, judged in this vehicle frame."""
+    def _above_road(self, road: Ground, pose: npt.NDArray[np.float64]
+                    ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float64]]:
+        """Voxels inside the volume of interest and above the road (judged in this vehicle frame), and every
+        voxel's height above the road."""
         vol = self.volume
         offset = self.map.centroids - pose[:3, 3]
         rot = pose[:3, :3]  # world -> vehicle frame is offset @ rot, written out to stay off BLAS threads
         local = offset[:, 0:1] * rot[0] + offset[:, 1:2] * rot[1] + offset[:, 2:3] * rot[2]
         height = road.height(local)
-        return ((self.map.counts >= self._min_points(local)) & (height > self.clearance) & (height <= vol.z_max)
-                & (local[:, 0] >= vol.x_min) & (local[:, 0] <= vol.x_max) & (np.abs(local[:, 1]) <= vol.y_half))
+        inside = ((self.map.counts >= self._min_points(local)) & (height > self.clearance) & (height <= vol.z_max)
+                  & (local[:, 0] >= vol.x_min) & (local[:, 0] <= vol.x_max) & (np.abs(local[:, 1]) <= vol.y_half))
+        return inside, height
