@@ -12,11 +12,11 @@ long along the horizontal line of sight (the gap a grazing surface leaves). Sepa
 touch in a few voxels only; parts of one object share a whole edge or face. The paper's own
 aggregation of small clusters follows.
 
-``min_voxels`` here (``voxel.join_min_voxels``, 6) is below the noise limit on purpose: a walker
+``min_voxels`` here (``voxel.join_min_voxels``, 8) is below the noise limit on purpose: a walker
 seen from the front is 15-30 voxels split by colour into coat and trousers of 6-15 each, and
 with the noise limit (20) gating the join too, both parts were aggregated into a facade or dropped
 in alternate frames (synthetic crossing, seed 7: objects in one cluster 55 -> 40 % when the limit
-went from 12 to 20; 67 % with parts joined from 6 voxels).
+went from 12 to 20; 62 % with parts joined from 8 voxels, docs/results/voxel.md).
 """
 
 from __future__ import annotations
