@@ -206,7 +206,6 @@ class ReplayConfig:
     # what lockstep waits for: the tracker (one frame in flight) or stereo_depth/points (paced by the
     # first stage, later stages pipelined)
     lockstep_topic: str = "tracker/obstacles"
-    lockstep_window: int = 1  # frames in flight before the replay waits (2 keeps the paced stage busy)
     image_format: str = "raw"  # raw | png | jpeg on the wire
     topics: list[str] = field(default_factory=lambda: ["camera/stereo", "groundtruth/**"])
     wait_for: list[str] = field(default_factory=list)  # services whose liveliness to await first

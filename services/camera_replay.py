@@ -6,8 +6,7 @@ published Obstacles for frame k; a reply that does not come within ``replay.lock
 is logged, counted in Health and the summary, and replay goes on). ``--lockstep-on
 stereo_depth/points`` paces by the first stage instead: the camera runs exactly as fast as stereo
 takes frames, and the later stages work on frame k while stereo works on k+1 — the pipeline's
-own top rate, without a flood of frames that only get dropped; with ``replay.lockstep_window`` 2
-the next frame already waits when stereo finishes one, so no stage idles during a bus hop. Every StereoFrame gets a
+own top rate, without a flood of frames that only get dropped. Every StereoFrame gets a
 fresh timing trail ``[("camera_replay", t, t)]`` so latencies never depend on when the data was
 recorded; ground truth of the first pass goes out byte for byte as recorded. Before the first
 frame the replay waits for the liveliness tokens of the services it feeds (``--wait-for``; the
@@ -94,8 +93,6 @@ class Replay:
         except zenoh.ZError as exc:
             raise ConfigError(f"replay.topics {rc.topics!r}: not valid key expressions ({exc})") from None
         self.pubs: dict[str, Publisher] = {}
-        if rc.lockstep_window < 1:
-            raise ConfigError(f"replay.lockstep_window must be at least 1, got {rc.lockstep_window}")
         if rc.lockstep and rc.lockstep_topic not in TOPICS:
             raise ConfigError(f"replay.lockstep_topic {rc.lockstep_topic!r} is none of {sorted(TOPICS)}")
         # FIFO, not newest: every report is taken, so Health shows no "dropped" reports that were merely superseded
@@ -132,7 +129,7 @@ class Replay:
                     break
                 try:
                     if topic == CAMERA_TOPIC:
-                        self._await_reports(self.cfg.replay.lockstep_window - 1)
+                        self._await_reports(0)
                         self.pacer.wait(stamp)
                         last_id = self._publish_frame(rec, frame_id, stamp)
                     else:
