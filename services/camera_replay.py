@@ -129,7 +129,7 @@ class Replay:
                     break
                 try:
                     if topic == CAMERA_TOPIC:
-                        self._await_reports(0)
+                        self._await_reports()
                         self.pacer.wait(stamp)
                         last_id = self._publish_frame(rec, frame_id, stamp)
                     else:
@@ -144,7 +144,7 @@ class Replay:
                 if loop and self.stats.frames:
                     continue
             break
-        self._await_reports(0)
+        self._await_reports()
         return self.stats
 
     def _end_of_pass(self) -> None:
@@ -185,9 +185,9 @@ class Replay:
         self._publisher(topic).put(data)
         self.stats.other += 1
 
-    def _await_reports(self, room: int) -> None:
-        """Lockstep: block until at most ``room`` frames sent await their report; a missing one is a timeout."""
-        while self.reports is not None and len(self._in_flight) > room:
+    def _await_reports(self) -> None:
+        """Lockstep: block until every frame sent has its report; a missing one is a timeout."""
+        while self.reports is not None and self._in_flight:
             self._await_report(self._in_flight.pop(0))
 
     def _await_report(self, frame_id: int) -> None:

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from common.errors import BusError
-from services.bus_bench import BenchResult, local_router
+from services.bus_bench import BenchResult, local_router, stop_router
 from services.netns import TwoHosts, two_namespaces
 
 REPO = Path(__file__).resolve().parent.parent
@@ -65,11 +65,7 @@ def router_in(hosts: TwoHosts) -> Iterator[str]:
             raise BusError(f"router in namespace did not start: {line!r} (exit {proc.poll()})")
         yield endpoint
     finally:
-        proc.terminate()
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        stop_router(proc)
 
 
 def topologies(hosts: TwoHosts | None) -> Iterator[tuple[str, list[str], list[str], AbstractContextManager[str]]]:
