@@ -79,6 +79,8 @@ class StereoConfig:
     decimation: int = 1  # keep every n-th point in x and y
     min_points_depth_m: float = 0.5
     below_volume_m: float = 1.0  # keep points this far below volume.z_min: the road for the mapper
+    disparity_offset_px: float = 0.0  # a rig's disparity bias, added before depth (KITTI: as odometry's)
+    disparity_edge_px: float = 0.0  # plus this times ((u - cx) / fx)^2, towards the image sides
 
 
 @dataclass

@@ -155,6 +155,20 @@ def test_points_outside_the_volume_are_cropped_but_the_road_band_is_kept() -> No
     assert np.isfinite(disp.disparity).sum() > 3 * len(pts)  # the disparity image is never cropped
 
 
+def test_a_rigs_disparity_bias_moves_the_points_but_not_the_disparity_image() -> None:
+    """KITTI's disparities are too small by ``offset + edge * ((u - cx) / fx)^2``: depths use them corrected."""
+    plain_cloud, plain = _core().process(_scene())
+    cloud, disp = _core(disparity_offset_px=0.5, disparity_edge_px=2.0).process(_scene())
+    assert np.array_equal(disp.disparity, plain.disparity, equal_nan=True)
+    for u, v in ((190, 120), (290, 100)):  # the box's centre (near the axis) and the wall at the right side
+        side = (u - CX) / FX
+        measured = float(disp.disparity[v, u])
+        for points, bias in ((plain_cloud.points, 0.0), (cloud.points, 0.5 + 2.0 * side * side)):
+            expected = _vehicle_point(u, v, FX * BASELINE / (measured + bias)).astype(np.float32)
+            assert np.min(np.linalg.norm(points - expected, axis=1)) < 0.005, (u, v, bias)
+    assert np.median(cloud.points[:, 0]) < np.median(plain_cloud.points[:, 0])  # larger disparities: nearer
+
+
 def test_decimation_keeps_every_nth_pixel() -> None:
     full, _ = _core().process(_scene())
     sparse, _ = _core(decimation=2).process(_scene())

@@ -41,7 +41,8 @@ class StereoDepth:
             raise ConfigError("stereo.num_disparities must be >= 0 (0 = from calibration), decimation >= 1")
         self.cfg = stereo
         crop = VolumeCrop.from_config(volume, stereo.below_volume_m)
-        self.reprojector = Reprojector(crop, stereo.min_points_depth_m, stereo.decimation)
+        bias = (stereo.disparity_offset_px, stereo.disparity_edge_px)
+        self.reprojector = Reprojector(crop, stereo.min_points_depth_m, stereo.decimation, bias)
         self._matchers: dict[int, MultiResolutionMatcher] = {}
         self.last_degenerate = False
         self.last_timings_ms: dict[str, float] = {}
