@@ -182,6 +182,7 @@ class TrackerConfig:
     frame_period_s: float = 0.1  # time step when stamps cannot give one
     jump_nis: float = 7.8  # innovation (squared Mahalanobis, 3 dof; 7.8 = chi2 95 %) that re-anchors, not corrects
     fragment_margin: float = 0.25  # clusters in a known track's predicted box grown by this (m) merge; < 0: off
+    reshape_m: float = 3.0  # box grown or shrunk by more (m, x or y): a not-yet-moving track's speed window restarts
 
 
 @dataclass

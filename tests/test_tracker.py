@@ -478,3 +478,28 @@ def test_oncoming_car_seen_with_range_noise_is_called_moving_within_seven_frames
         out = step(tracker, k, [surface((front, 3.0, 0.25), (front + 4.0, 4.75, 1.5))])
         labelled += [o.moving for o in out.obstacles]
     assert any(labelled[:8]), labelled
+
+
+def test_a_cluster_that_sheds_a_merged_neighbour_forgets_the_faces_of_the_blob() -> None:
+    # a parked car 12 m ahead, right of the road, merged for five frames with a hedge across 6 m;
+    # then the car alone (2 m wide): the side faces before and after are of two different shapes,
+    # and a line through them would read a lateral speed (KITTI tracking 0001, frames 5-9)
+    tracker = new_tracker()
+    blob, car = surface((11.0, -4.0, 0.25), (15.0, 2.0, 1.5)), surface((11.0, -4.0, 0.25), (14.0, -2.0, 1.5))
+    for k in range(5):
+        step(tracker, k, [blob])
+    assert tracker.tracks.window_n[0] == 5
+    step(tracker, 5, [car])
+    assert tracker.tracks.window_n[0] == 1  # the window starts again from the car's own face
+    labels = [o.moving for k in range(6, 16) for o in step(tracker, k, [car]).obstacles]
+    assert not any(labels)
+
+
+def test_a_moving_track_keeps_its_faces_through_a_change_of_shape() -> None:
+    # its label rests on the window: a lorry whose cluster loses its trailer half is still moving
+    tracker = new_tracker()
+    for k in range(10):
+        x = 15.0 + 1.0 * k  # 10 m/s away from the parked vehicle
+        step(tracker, k, [surface((x, 2.0, 0.25), (x + 8.0, 4.5, 3.0))])
+    (o,) = step(tracker, 10, [surface((25.0, 2.0, 0.25), (29.0, 4.5, 3.0))]).obstacles
+    assert o.moving and tracker.tracks.window_n[0] > 1

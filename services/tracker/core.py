@@ -90,6 +90,7 @@ class Tracker:
         jump_nis: float = float("inf"),
         fragment_margin: float = -1.0,
         accept_misses: int = 0,
+        reshape_m: float = float("inf"),
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -106,6 +107,7 @@ class Tracker:
         self.jump_nis = jump_nis
         self.fragment_margin = fragment_margin
         self.accept_misses = accept_misses
+        self.reshape_m = reshape_m
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.tracks = TrackTable()
         self.ego = EgoVelocity()
@@ -134,6 +136,7 @@ class Tracker:
             jump_nis=t.jump_nis,
             fragment_margin=t.fragment_margin,
             accept_misses=t.accept_misses,
+            reshape_m=t.reshape_m,
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
@@ -269,8 +272,12 @@ class Tracker:
         p[jump, 0:3, 0:3] = r[jump]
         p[jump, 0:3, 3:6] = 0.0
         p[jump, 3:6, 0:3] = 0.0
-        # and the faces of the old shape say nothing about the new one's motion
-        motion_window.restart(t.window_n, rows[jump])
+        # and the faces of the old shape say nothing about the new one's motion, even where the
+        # filter let a change of extent pass as visibility (a parked car leaving the blob it was
+        # merged into); a track already moving keeps its faces, which its label stays on
+        extent_step = np.abs(obs.extent - (t.bbox_max[rows] - t.bbox_min[rows]))[:, 0:2].max(axis=1)
+        reshaped = (extent_step > self.reshape_m) & ~t.moving[rows]
+        motion_window.restart(t.window_n, rows[jump | reshaped])
         motion_window.push(t.window, t.window_t, t.window_n, rows, obs.anchor, self._clock)
         motion_window.push(t.window_far, t.window_t.copy(), t.window_n.copy(), rows, obs.anchor + obs.far, self._clock)
         t.nis[rows] += self.noise_adaptation * (np.where(jump, t.nis[rows], nis) - t.nis[rows])

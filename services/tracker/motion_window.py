@@ -45,8 +45,11 @@ def push(points: NDArray, times: NDArray, count: NDArray, rows: NDArray, new_poi
 
 
 def restart(count: NDArray, rows: NDArray) -> None:
-    """Keep only the newest entry of ``rows``: what came before belongs to another cluster shape."""
-    count[rows] = np.minimum(count[rows], 1)
+    """Forget every entry of ``rows``: what came before belongs to another cluster shape.
+
+    Called before the new face is pushed, so the window starts again from that face alone.
+    """
+    count[rows] = 0
 
 
 def shift(points: NDArray, rows: NDArray, offset: NDArray) -> None:
