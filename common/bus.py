@@ -42,7 +42,8 @@ def zenoh_config(bus: BusConfig) -> zenoh.Config:
     if bus.connect:
         conf.insert_json5("connect/endpoints", json.dumps(bus.connect))
     conf.insert_json5("scouting/multicast/enabled", json.dumps(bus.multicast_scouting))
-    conf.insert_json5("transport/shared_memory/enabled", json.dumps(bus.shared_memory))
+    if not bus.zenoh_config:  # a deployment's Zenoh file decides for itself (deploy/zenoh/*.json5)
+        conf.insert_json5("transport/shared_memory/enabled", json.dumps(bus.shared_memory))
     if bus.user:
         conf.insert_json5("transport/auth/usrpwd/user", json.dumps(bus.user))
         conf.insert_json5("transport/auth/usrpwd/password", json.dumps(bus.password))

@@ -28,7 +28,7 @@ class BusConfig:
     listen: list[str] = field(default_factory=list)
     connect: list[str] = field(default_factory=list)
     vehicle: str = "ego"
-    shared_memory: bool = False
+    shared_memory: bool = False  # without a zenoh_config file; with one, the file decides
     multicast_scouting: bool = False
     user: str = ""  # usrpwd authentication (client side)
     password: str = ""
@@ -209,7 +209,7 @@ class ReplayConfig:
     # what lockstep waits for: the tracker (one frame in flight) or stereo_depth/points (paced by the
     # first stage, later stages pipelined)
     lockstep_topic: str = "tracker/obstacles"
-    image_format: str = "raw"  # raw | png | jpeg on the wire
+    image_format: str = "raw"  # raw | png | jpeg on the wire, or recorded: as stored, not re-encoded
     topics: list[str] = field(default_factory=lambda: ["camera/stereo", "groundtruth/**"])
     wait_for: list[str] = field(default_factory=list)  # services whose liveliness to await first
     wait_timeout_s: float = 60.0

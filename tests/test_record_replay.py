@@ -15,13 +15,16 @@ import numpy as np
 import pytest
 import zenoh
 from conftest import Processes, free_port, stereovox_cmd, wait_for
-from fake_recording import CALIB, write_recording
+from fake_recording import CALIB, PERIOD_NS, START_NS, write_recording
+from fake_recording import frame as fake_frame
 from mcap.reader import make_reader
 
 from common.bus import Publisher, declare_alive, open_session, watch_alive
-from common.config import BusConfig
-from common.messages import Health, Message, Obstacles, StereoFrame, decode, key_for
+from common.config import BusConfig, Config
+from common.errors import DecodeError
+from common.messages import Health, Message, Obstacles, StereoFrame, decode, encode, key_for
 from common.recording import RecordingWriter, open_recording, peek_stamp
+from services.camera_replay import stereo_wire
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -280,6 +283,41 @@ def test_loop_keeps_frame_ids_increasing(tmp_path: Path, processes: Processes, h
         assert isinstance(f, StereoFrame) and f.image_format == "png"
         np.testing.assert_array_equal(f.left, recorded[i % 6].left)
         np.testing.assert_array_equal(f.right, recorded[i % 6].right)
+
+
+def test_recorded_images_go_out_as_stored(tmp_path: Path, processes: Processes, hub: Hub) -> None:
+    """``--image-format recorded``: JPEG frames leave as JPEG, renumbered with a fresh trail, same pixels."""
+    source = tmp_path / "jpeg.mcap"
+    rng = np.random.default_rng(3)
+    with RecordingWriter(source) as w:
+        w.describe(Config().to_dict(), {"source": "synthetic", "frames": 4, "frame_rate_hz": 10.0})
+        for i in range(4):
+            w.write(CAMERA, fake_frame(i, rng, "jpeg"), log_time_ns=START_NS + i * PERIOD_NS)
+    frames: list[StereoFrame] = []
+    sub = hub.listen(CAMERA, lambda key, msg, t: frames.append(msg))  # type: ignore[arg-type]
+    token = declare_alive(hub.session, "monitor", "ego")
+    replay = processes.start(
+        stereovox_cmd("replay", str(source), "--max", "--loop", "--max-frames", "6", "--wait-for", "monitor",
+                      "--image-format", "recorded", "--connect", hub.endpoint),
+        "replay",
+    )
+    assert replay.wait(60) == 0, processes.log(replay)
+    wait_for(lambda: len(frames) == 6, 20, "6 frames")
+    sub.undeclare()
+    token.undeclare()
+    recorded = [m for _, m in open_recording(source).messages(keys=[CAMERA])]
+    assert [f.frame_id for f in frames] == list(range(6))  # the second pass numbered on
+    for i, f in enumerate(frames):
+        assert f.image_format == "jpeg" and [stage for stage, _, _ in f.timing] == ["camera_replay"]
+        np.testing.assert_array_equal(f.left, recorded[i % 4].left)
+        np.testing.assert_array_equal(f.right, recorded[i % 4].right)
+
+
+@pytest.mark.parametrize("data", [b"\xc1", encode(Health(frame_id=1, stamp_ns=1, service="x")),
+                                  encode(fake_frame(0, np.random.default_rng(0)))[:-40]])
+def test_a_recorded_frame_that_is_no_stereo_frame_is_named(data: bytes) -> None:
+    with pytest.raises(DecodeError, match="StereoFrame"):
+        stereo_wire(data)
 
 
 def test_truncated_recording_replays_its_readable_part(tmp_path: Path, processes: Processes) -> None:
