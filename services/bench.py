@@ -74,16 +74,24 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def _proc_figures(pid: int, wall_s: float) -> tuple[float | None, float | None]:
-    """Peak resident memory (MB) and CPU share (% of one core) of a live process, from /proc."""
+ProcFigures = tuple[float | None, float | None, float | None]
+
+
+def _proc_figures(pid: int, wall_s: float) -> ProcFigures:
+    """Peak resident memory (MB), private memory now (MB) and CPU share (% of one core), from /proc.
+
+    Peak RSS counts every page mapped, including the shared-memory pools of the other processes
+    on the computer (Zenoh SHM), so it overstates what a service costs; RssAnon is its own heap.
+    """
     try:
         status = Path(f"/proc/{pid}/status").read_text()
         stat = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     except OSError:
-        return None, None
-    hwm = next((int(line.split()[1]) for line in status.splitlines() if line.startswith("VmHWM:")), 0)
+        return None, None, None
+    fields = {line.split(":")[0]: line.split()[1] for line in status.splitlines() if line.endswith(" kB")}
     ticks = int(stat[11]) + int(stat[12])  # utime + stime
-    return hwm / 1024.0, 100.0 * ticks / _clock_ticks() / wall_s if wall_s > 0 else None
+    cpu = 100.0 * ticks / _clock_ticks() / wall_s if wall_s > 0 else None
+    return int(fields.get("VmHWM", 0)) / 1024.0, int(fields.get("RssAnon", 0)) / 1024.0, cpu
 
 
 def _clock_ticks() -> int:
@@ -98,7 +106,7 @@ def bench_distributed(recording: Path, seconds: float, workdir: Path) -> dict[st
     spec = load_spec(LIVE_SPEC, variables)
     settings = recording_settings(open_recording(recording).info())
     sup = Supervisor(spec, host=None, log_dir=workdir / "logs", restart=False, extra_args=settings)
-    figures: dict[str, tuple[float | None, float | None]] = {}
+    figures: dict[str, ProcFigures] = {}
     try:
         sup.start()
         started = time.monotonic()
@@ -118,7 +126,7 @@ def bench_distributed(recording: Path, seconds: float, workdir: Path) -> dict[st
     return _distributed_figures(workdir / "run.mcap", figures)
 
 
-def _distributed_figures(run_path: Path, figures: dict[str, tuple[float | None, float | None]]) -> dict[str, Any]:
+def _distributed_figures(run_path: Path, figures: dict[str, ProcFigures]) -> dict[str, Any]:
     reader = open_recording(run_path)
     e2e: list[float] = []
     ends: list[int] = []
@@ -138,7 +146,8 @@ def _distributed_figures(run_path: Path, figures: dict[str, tuple[float | None, 
         "e2e_ms": {"p50": float(np.median(e2e)), "p95": float(np.percentile(e2e, 95))} if e2e else None,
         "dropped": {s: dropped.get(s, 0) for s in STAGES},
         "rss_mb": {n: f[0] for n, f in figures.items()},
-        "cpu_pct": {n: f[1] for n, f in figures.items()},
+        "private_mb": {n: f[1] for n, f in figures.items()},
+        "cpu_pct": {n: f[2] for n, f in figures.items()},
         "obstacle_frames": len(ends),
     }
 
@@ -237,6 +246,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"e2e             p50 {report['e2e_ms']['p50']:.1f} ms  p95 {report['e2e_ms']['p95']:.1f} ms")
     print(f"dropped         {report['dropped']}")
     print("rss_mb          " + ", ".join(f"{k} {v:.0f}" for k, v in report["rss_mb"].items() if v))
+    print("private_mb      " + ", ".join(f"{k} {v:.0f}" for k, v in report["private_mb"].items() if v))
     print("cpu_pct         " + ", ".join(f"{k} {v:.0f}" for k, v in report["cpu_pct"].items() if v))
     if "kitti_size" in report:
         print(f"--- at 1242x375 ({report['kitti_size']['recording']})")

@@ -29,8 +29,9 @@ def test_bench_json_has_every_figure() -> None:
     assert report["distributed_hz"] > 0, "no obstacles reached the recorder in the distributed run"
     assert 0 < report["e2e_ms"]["p50"] <= report["e2e_ms"]["p95"]
     assert set(report["dropped"]) == STAGES
-    for figures in (report["rss_mb"], report["cpu_pct"]):
+    for figures in (report["rss_mb"], report["private_mb"], report["cpu_pct"]):
         assert set(figures) >= STAGES and all(v is not None and v > 0 for v in figures.values())
+    assert all(report["private_mb"][n] < report["rss_mb"][n] for n in STAGES)  # a peak holds what is private now
     kitti = report["kitti_size"]
     assert set(kitti["stages"]) == STAGES and kitti["process_hz"] > 0
     for sweep in (report["voxel_sweep"], kitti["voxel_sweep"]):
