@@ -133,6 +133,7 @@ class VoxelConfig:
     terrain_max_grade: float = 0.15  # steepest road grade (and grade change per slice) followed
     join_share: float = 0.3  # clusters joined as parts of one object when this share of one links to the other
     bridge_voxels: int = 3  # a gap along the line of sight up to this many voxels still links two parts
+    step_bridge_voxels: int = 4  # same, one layer up and away or down and nearer, seen from both parts (measured 0-8)
     points_range_m: float = 15.0  # beyond this range min_points_per_voxel falls with range squared (0 = fixed)
     min_points_far: int = 2  # ... but never below this
     join_min_voxels: int = 8  # smallest parts joined into one object (0 = min_cluster_voxels; measured 4..20)

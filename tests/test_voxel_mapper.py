@@ -115,6 +115,27 @@ def test_faces_apart_along_the_line_of_sight_are_one_cluster() -> None:
     assert len(mapper().process(cloud(road(), back, window), ego()).clusters) == 1
 
 
+def test_a_grille_and_a_windscreen_one_layer_apart_are_one_cluster() -> None:
+    """A car seen head-on from afar: grille below 0.9 m, windscreen from 1.05 m and 1 m further
+    away, the bonnet between them seen edge-on, so no layer of voxels holds both."""
+    front = box((20.0, -0.9, 0.3), (20.05, 0.9, 0.85), RED)
+    screen = box((21.0, -0.8, 1.05), (21.05, 0.8, 1.55), GLASS)
+    assert len(mapper(step_bridge_voxels=0).process(cloud(road(), front, screen), ego()).clusters) == 2
+    (car,) = mapper().process(cloud(road(), front, screen), ego()).clusters
+    assert car.bbox_min[2] < 0.4 and car.bbox_max[2] == pytest.approx(1.6, abs=0.1)
+    # a board 2 m behind a low box is another object, however it lines up
+    board = box((22.0, -0.8, 1.05), (22.05, 0.8, 1.55), GLASS)
+    assert len(mapper().process(cloud(road(), front, board), ego()).clusters) == 2
+
+
+def test_a_low_box_before_a_hedge_stays_apart_from_it() -> None:
+    """The box's top looks up and away into the hedge, but the hedge stands on the road: it has no
+    bottom in the air that looks back down to the box, so the step link is not mutual."""
+    low = box((20.0, -0.9, 0.3), (20.8, 0.9, 0.7), RED)
+    hedge = box((21.4, -3.0, 0.0), (22.4, 3.0, 2.2), GREEN)
+    assert len(mapper().process(cloud(road(), low, hedge), ego()).clusters) == 2
+
+
 def test_lone_noise_voxel_is_removed() -> None:
     rng = np.random.default_rng(6)
     speck = ((np.array([12.05, 3.05, 1.05]) + rng.random((30, 3)) * 0.15).astype(np.float32), noisy_colour(GREEN, 30))

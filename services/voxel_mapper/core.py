@@ -50,7 +50,7 @@ class VoxelMapper:
                  keep_frames: int = 0, ground_clearance: float = 0.2, join_share: float = 0.3,
                  bridge_voxels: int = 3, points_range_m: float = 0.0, min_points_far: int = 2,
                  join_min_voxels: int = 0, cut_tall_m: float = 0.0, cut_low_m: float = 2.2,
-                 cut_min_voxels: int = 12) -> None:
+                 cut_min_voxels: int = 12, step_voxels: int = 0) -> None:
         if edge <= 0.0:
             raise ConfigError(f"voxel.edge must be > 0, got {edge}")
         self.map = VoxelMap(edge, keep_frames)
@@ -63,6 +63,7 @@ class VoxelMapper:
         self.clearance = ground_clearance
         self.join_share = join_share
         self.bridge_voxels = bridge_voxels
+        self.step_voxels = step_voxels
         self.points_range = points_range_m
         self.min_points_far = min_points_far
         self.join_min = join_min_voxels if join_min_voxels > 0 else min_cluster_voxels
@@ -85,7 +86,7 @@ class VoxelMapper:
                    ground_clearance=v.ground_clearance, join_share=v.join_share, bridge_voxels=v.bridge_voxels,
                    points_range_m=v.points_range_m, min_points_far=v.min_points_far,
                    join_min_voxels=v.join_min_voxels, cut_tall_m=v.cut_tall_m, cut_low_m=v.cut_low_m,
-                   cut_min_voxels=v.cut_min_voxels)
+                   cut_min_voxels=v.cut_min_voxels, step_voxels=v.step_bridge_voxels)
 
     def process(self, cloud: PointCloud, ego: EgoMotion) -> Clusters:
         """Update the map with one frame and cluster the voxels above the road."""
@@ -97,7 +98,7 @@ class VoxelMapper:
         candidate, height = self._above_road(road, ego.pose)
         labels, n_clusters = flood_fill(self.map, candidate, self.epsilon)
         labels = join_parts(self.map, labels, n_clusters, ego.pose[:3, 3], self.join_min,
-                            self.join_share, self.bridge_voxels)
+                            self.join_share, self.bridge_voxels, self.step_voxels)
         if self.cut[0] > 0.0:
             labels, n_clusters = cut_low_parts(labels, n_clusters, self.map.coords, height, *self.cut)
         labels = aggregate(labels, n_clusters, touching_pairs(self.map, labels), self.min_cluster_voxels)
