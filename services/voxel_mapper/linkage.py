@@ -38,6 +38,18 @@ NO_DELTAS = np.zeros(0, dtype=np.int64)  # for a pass of step links alone
 
 
 @numba.njit(cache=True)
+def _remember(seen: npt.NDArray[np.int64], n_seen: int, b: int) -> int:
+    """Add cluster ``b`` to the first ``n_seen`` of ``seen`` unless there; the new count."""
+    for q in range(n_seen):
+        if seen[q] == b:
+            return n_seen
+    if n_seen < MAX_SEEN:
+        seen[n_seen] = b
+        return n_seen + 1
+    return n_seen
+
+
+@numba.njit(cache=True)
 def _links(members: npt.NDArray[np.int64], labels: I32, keys: npt.NDArray[np.int64],
            table_keys: npt.NDArray[np.int64], table_slots: I32, shift: int, deltas: npt.NDArray[np.int64],
            sight: npt.NDArray[np.float64], bridge: int, climb: int) -> npt.NDArray[np.int64]:
@@ -64,13 +76,7 @@ def _links(members: npt.NDArray[np.int64], labels: I32, keys: npt.NDArray[np.int
                 gap = s == EMPTY
             if s == EMPTY or labels[s] < 0 or labels[s] == a:
                 continue
-            b = labels[s]
-            known = False
-            for q in range(n_seen):
-                known = known or seen[q] == b
-            if not known and n_seen < MAX_SEEN:
-                seen[n_seen] = b
-                n_seen += 1
+            n_seen = _remember(seen, n_seen, labels[s])
         if climb > 0:
             i0 = (key >> (2 * BITS)) - OFFSET
             j0 = ((key >> BITS) & FIELD) - OFFSET
@@ -85,13 +91,7 @@ def _links(members: npt.NDArray[np.int64], labels: I32, keys: npt.NDArray[np.int
                     if s == EMPTY:
                         continue
                     if labels[s] >= 0 and labels[s] != a:
-                        b = labels[s]
-                        known = False
-                        for q in range(n_seen):
-                            known = known or seen[q] == b
-                        if not known and n_seen < MAX_SEEN:
-                            seen[n_seen] = b
-                            n_seen += 1
+                        n_seen = _remember(seen, n_seen, labels[s])
                     break
         for q in range(n_seen):
             if n == out.shape[0]:
