@@ -133,7 +133,6 @@ class Replay:
         )
         self._in_flight: list[int] = []  # frame ids sent whose report lockstep still awaits, oldest first
         self._done = -1  # highest frame id reported
-        self._prepare_ms = 0.0  # decoding time of the frame about to be published
         self.health = StageHealth("camera_replay", [self.reports] if self.reports else [])
         self.health.extra |= {
             "lockstep_timeouts": lambda: self.stats.lockstep_timeouts,
@@ -160,10 +159,10 @@ class Replay:
                     break
                 try:
                     if topic == CAMERA_TOPIC:
-                        frame = self._prepare_frame(rec)  # decoded while the stages still work on the last one
+                        frame, prepare_ms = self._prepare_frame(rec)  # while the stages work on the last one
                         self._await_reports()
                         self.pacer.wait(stamp)
-                        last_id = self._publish_frame(frame, frame_id, stamp)
+                        last_id = self._publish_frame(frame, frame_id, stamp, prepare_ms)
                     else:
                         self.pacer.wait(stamp)
                         self._publish_other(rec, topic, frame_id, stamp)
@@ -192,8 +191,9 @@ class Replay:
             pub = self.pubs[topic] = Publisher(self.session, key_for(topic, self.cfg.bus.vehicle))
         return pub
 
-    def _prepare_frame(self, rec: RawRecord) -> StereoFrame | dict[str, Any]:
-        """The recorded frame, decoded; or, for ``recorded``, its msgpack map with the images as stored.
+    def _prepare_frame(self, rec: RawRecord) -> tuple[StereoFrame | dict[str, Any], float]:
+        """The recorded frame, decoded (or, for ``recorded``, its msgpack map with the images as
+        stored), and the milliseconds that took.
 
         Done before the lockstep wait, so it overlaps the stages' work on the frame before. Decoding
         the bundled recording's JPEG pair and sending it raw cost the replay 12 % of a core, the
@@ -202,10 +202,11 @@ class Replay:
         start = time.perf_counter()
         as_stored = self.cfg.replay.image_format == RECORDED
         frame = stereo_wire(rec.data) if as_stored else decode(rec.data, StereoFrame)
-        self._prepare_ms = (time.perf_counter() - start) * 1e3
-        return frame
+        return frame, (time.perf_counter() - start) * 1e3
 
-    def _publish_frame(self, frame: StereoFrame | dict[str, Any], frame_id: int | None, stamp: int) -> int:
+    def _publish_frame(
+        self, frame: StereoFrame | dict[str, Any], frame_id: int | None, stamp: int, prepare_ms: float
+    ) -> int:
         """Renumber, give a fresh timing trail, publish; returns the frame id sent."""
         start = time.perf_counter()
         if frame_id is None:  # the header peek failed but the message decodes: number it from its body
@@ -224,7 +225,7 @@ class Replay:
         self._publisher(CAMERA_TOPIC).put(data)
         self.stats.frames += 1
         self.health.frames_out += 1
-        self.health.processed(self._prepare_ms + (time.perf_counter() - start) * 1e3)
+        self.health.processed(prepare_ms + (time.perf_counter() - start) * 1e3)
         self._in_flight.append(frame_id)
         return frame_id
 
