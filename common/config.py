@@ -114,7 +114,11 @@ class OdometryConfig:
     min_disparity: float = 1.0
     max_lost_frames: int = 5  # predicted frames bridged before the world is re-anchored
     seed: int = 0  # RANSAC sampling, so a run is repeatable
-    fuse_ins: bool = False
+    fuse_ins: bool = False  # fuse the vehicle's speed and yaw rate (vehicle/motion) per frame (ins.py)
+    ins_speed_std_mps: float = 0.05  # their noise, one sigma: an INS or wheel odometry's speed ...
+    ins_yaw_rate_std_dps: float = 0.05  # ... and its gyro (deg/s)
+    ins_vision_scale_std: float = 0.01  # vision's step length error its covariance does not show (share)
+    ins_vision_yaw_std_dpm: float = 0.005  # ... and its yaw error (deg per metre travelled)
 
 
 @dataclass
@@ -211,7 +215,7 @@ class ReplayConfig:
     # first stage, later stages pipelined)
     lockstep_topic: str = "tracker/obstacles"
     image_format: str = "raw"  # raw | png | jpeg on the wire, or recorded: as stored, not re-encoded
-    topics: list[str] = field(default_factory=lambda: ["camera/stereo", "groundtruth/**"])
+    topics: list[str] = field(default_factory=lambda: ["camera/stereo", "vehicle/**", "groundtruth/**"])
     wait_for: list[str] = field(default_factory=list)  # services whose liveliness to await first
     wait_timeout_s: float = 60.0
 

@@ -223,6 +223,21 @@ class Obstacles(Message):
 
 
 @dataclass(kw_only=True)
+class VehicleMotion(Message):
+    """What the vehicle's own sensors (an INS, wheel speed and a gyro on the CAN bus) say of its motion.
+
+    Body frame, sampled for one camera frame (same ``frame_id``): the twist part of what a ROS
+    system publishes as ``nav_msgs/Odometry``. A sensor input, not ground truth, even where a
+    dataset's truth comes from the same INS (KITTI's OXTS).
+    """
+
+    SCHEMA: ClassVar[str] = "VehicleMotion"
+    speed_mps: float  # forward speed over ground
+    yaw_rate_rps: float  # about the vehicle's up axis, counter-clockwise (left turn) positive
+    source: str = ""  # which sensor, e.g. "oxts"
+
+
+@dataclass(kw_only=True)
 class GroundTruthEgo(Message):
     """True vehicle pose in the world frame (vehicle frame at the recording's first frame)."""
 
@@ -274,6 +289,7 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     EgoMotion,
     Clusters,
     Obstacles,
+    VehicleMotion,
     GroundTruthEgo,
     GroundTruthObjects,
     GroundTruthDisparity,
@@ -291,6 +307,7 @@ TOPICS: dict[str, type[Message]] = {
     "odometry/ego": EgoMotion,
     "voxel_mapper/clusters": Clusters,
     "tracker/obstacles": Obstacles,
+    "vehicle/motion": VehicleMotion,
     "groundtruth/ego": GroundTruthEgo,
     "groundtruth/objects": GroundTruthObjects,
     "groundtruth/disparity": GroundTruthDisparity,

@@ -305,7 +305,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="lockstep on this topic's reports instead, e.g. stereo_depth/points (implies --lockstep)")
     parser.add_argument("--loop", action="store_true", help="start again at the end (frame ids keep increasing)")
     parser.add_argument("--max-frames", type=int, default=0, metavar="N", help="stop after N camera frames")
-    parser.add_argument("--keys", help="comma-separated topics to replay (default camera/stereo,groundtruth/**)")
+    parser.add_argument("--keys", help="comma-separated topics to replay "
+                        "(default camera/stereo,vehicle/**,groundtruth/**)")
     parser.add_argument("--image-format", choices=REPLAY_FORMATS,
                         help="how images travel (default raw; recorded: as the recording holds them)")
     parser.add_argument("--wait-for", metavar="SERVICE,...", help="liveliness tokens to await before starting")

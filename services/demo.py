@@ -48,7 +48,9 @@ def recording_settings(info: dict[str, Any]) -> list[str]:
             for arg in ("--set", f"{section}.{key}={value}")]
 
 
-def run_demo(recording: Path, out: Path, max_frames: int | None, timeout_s: float | None = None) -> Path:
+def run_demo(
+    recording: Path, out: Path, max_frames: int | None, timeout_s: float | None = None, graph: Path = LOCAL_SPEC
+) -> Path:
     """Run the whole graph over ``recording``; returns the path of the run's recording."""
     info = open_recording(recording).info()
     frames = int(info.get("frames") or 10**6)
@@ -62,7 +64,7 @@ def run_demo(recording: Path, out: Path, max_frames: int | None, timeout_s: floa
         "recording": str(recording.resolve()),
         "max_frames": str(frames),
     }
-    spec = load_spec(LOCAL_SPEC, variables)
+    spec = load_spec(graph, variables)
     sup = Supervisor(spec, host=None, log_dir=out / "logs", restart=False, extra_args=recording_settings(info))
     deadline = time.monotonic() + (timeout_s or 120.0 + 5.0 * frames)
     stop = threading.Event()
@@ -129,13 +131,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/demo"))
     parser.add_argument("--json", action="store_true", help="print the evaluate JSON as the last line")
     parser.add_argument("--timeout", type=float, default=None, help="seconds before giving up (default: scaled)")
+    parser.add_argument("--graph", type=Path, default=LOCAL_SPEC,
+                        help="launch spec with local.yaml's placeholders (default deploy/local.yaml; "
+                             "deploy/local-ins.yaml fuses a recording's INS into the odometry)")
 
 
 def run(args: argparse.Namespace) -> int:
     from common.evaluation.evaluate import evaluate_recording
 
     try:
-        run_path = run_demo(args.recording, args.out, args.max_frames, args.timeout)
+        run_path = run_demo(args.recording, args.out, args.max_frames, args.timeout, args.graph)
     except StageDied as exc:
         print(f"stereovox demo: {exc}", file=sys.stderr)
         return 1

@@ -18,7 +18,7 @@ from typing import Any
 
 import yaml
 
-from common.errors import ConfigError
+from common.errors import ConfigError, StereovoxError
 from common.messages import SCHEMAS, Message
 
 QUEUE_POLICIES = ("newest", "fifo")
@@ -223,13 +223,19 @@ def _check_code(svc: ServiceSpec) -> list[str]:
     """A ``stereovox run`` stage reads and writes what its code does, not only what the spec says."""
     import importlib
 
-    from common.config import Config
+    from common.config import load_config
     from services.runner import SERVICES
 
     name = svc.command[1] if len(svc.command) > 1 else ""
     if name not in SERVICES:
         return [f"service {svc.name}: stereovox run has no stage {name!r} (one of {sorted(SERVICES)})"]
-    stage = importlib.import_module(SERVICES[name]).stage(Config())
+    # what a stage reads can depend on its settings (the odometry reads vehicle/motion when fusing)
+    sets = [svc.command[i + 1] for i, arg in enumerate(svc.command[:-1]) if arg == "--set"]
+    try:
+        cfg = load_config(None, sets)
+    except StereovoxError as exc:
+        return [f"service {svc.name}: {exc}"]
+    stage = importlib.import_module(SERVICES[name]).stage(cfg)
     errors = [f"service {svc.name}: the code reads {key}, the spec does not list it" for key in stage.inputs
               if key not in svc.inputs]
     errors += [f"service {svc.name}: input {key} is not read by stage {name}" for key in svc.inputs

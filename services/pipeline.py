@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from common.config import Config, load_config, recording_overrides
+from common.errors import ConfigError
 from common.messages import (
     Clusters,
     Disparity,
@@ -22,6 +23,7 @@ from common.messages import (
     Obstacles,
     PointCloud,
     StereoFrame,
+    VehicleMotion,
     key_for,
     now_ns,
     stamp_output,
@@ -69,7 +71,7 @@ class Pipeline:
         self.mapper = VoxelMapper.from_config(cfg)
         self.tracker = Tracker.from_config(cfg)
 
-    def process(self, frame: StereoFrame) -> FrameResult:
+    def process(self, frame: StereoFrame, vehicle: VehicleMotion | None = None) -> FrameResult:
         t = now_ns()
         frame = replace(frame, timing=[("camera_replay", t, t)])
         times: dict[str, float] = {}
@@ -81,7 +83,7 @@ class Pipeline:
         times["stereo_depth"] = (now_ns() - start) / 1e6
 
         start = now_ns()
-        ego = stamp_output(self.odometry.process(frame), [frame], "odometry", start)
+        ego = stamp_output(self.odometry.process(frame, vehicle), [frame], "odometry", start)
         times["odometry"] = (now_ns() - start) / 1e6
 
         start = now_ns()
@@ -102,16 +104,29 @@ def config_for(reader: RecordingReader, file: str | None = None, sets: list[str]
 def run_recording(
     reader: RecordingReader, cfg: Config, max_frames: int | None = None
 ) -> Iterator[tuple[str, Message] | FrameResult]:
-    """Yield the recording's ground truth untouched and a FrameResult for every stereo frame."""
+    """Yield the recording's ground truth and sensor inputs untouched and a FrameResult for every stereo frame.
+
+    With ``odometry.fuse_ins`` each frame goes to the odometry with the ``vehicle/motion`` sample of
+    the same frame id, which the importers write just before it; a recording whose first frame
+    comes without one has none and is refused.
+    """
     pipeline = Pipeline(cfg)
     frames = 0
+    sensors: dict[int, VehicleMotion] = {}
     for key, msg in reader.messages():
         topic = topic_of(key)
         if isinstance(msg, StereoFrame):
             if max_frames is not None and frames >= max_frames:
                 break
+            if cfg.odometry.fuse_ins and frames == 0 and not sensors:
+                raise ConfigError(f"odometry.fuse_ins needs vehicle/motion (INS) messages; {reader.path} has none")
             frames += 1
-            yield pipeline.process(msg)
+            yield pipeline.process(msg, sensors.pop(msg.frame_id, None))
+            sensors.clear()
+        elif isinstance(msg, VehicleMotion):
+            sensors[msg.frame_id] = msg
+            if max_frames is None or frames < max_frames:
+                yield key, msg
         elif topic.startswith("groundtruth/") and (max_frames is None or frames <= max_frames):
             yield key, msg
 

@@ -35,7 +35,7 @@ from hypothesis import strategies as st
 from common.bus import Publisher, declare_alive, open_session, watch_alive
 from common.config import BusConfig
 from common.errors import DecodeError
-from common.messages import TOPICS, Health, Message, Obstacles, decode, encode, key_for, topic_of
+from common.messages import TOPICS, Health, Message, Obstacles, VehicleMotion, decode, encode, key_for, topic_of
 from common.recording import open_recording
 from services.demo import BUNDLED, LOCAL_SPEC, recording_settings
 from services.launch_spec import load_spec
@@ -71,6 +71,9 @@ def templates(clean_run: Path) -> dict[str, Message]:
     out: dict[str, Message] = {}
     for topic in TOPICS:
         msgs = reader.by_topic(topic)
+        if topic == "vehicle/motion" and not msgs:  # synthetic scenes have no INS: a sample of KITTI's
+            out[topic] = VehicleMotion(frame_id=8, stamp_ns=800_000_000, speed_mps=10.5, yaw_rate_rps=0.01)
+            continue
         assert msgs, f"the clean run has no {topic}"
         out[topic] = shrink(msgs[8] if 8 in msgs else msgs[max(msgs)])
     for i, topic in enumerate(HEALTH_TOPICS):

@@ -52,7 +52,8 @@ def load(drive: Path, max_frames: int | None = None) -> StereoSequence:
     poses = oxts.vehicle_poses(packets, rig.imu_to_cam2(), cam_to_vehicle)
     velocities = oxts.world_velocities(packets, poses, cam_to_vehicle @ rig.imu_to_cam2())
     stamps = read_stamps(drive / "image_02" / "timestamps.txt", frames)
-    return StereoSequence(frames, stamps, pairs, rig.calibration(*image_size(pairs[0][0])), poses, velocities)
+    return StereoSequence(frames, stamps, pairs, rig.calibration(*image_size(pairs[0][0])), poses, velocities,
+                            oxts.vehicle_motion(packets))
 
 
 def import_drive(drive: Path, out: Path, max_frames: int | None = None) -> int:

@@ -47,7 +47,8 @@ def load(training: Path, sequence: str, max_frames: int | None = None) -> Tracki
     poses = oxts.vehicle_poses(packets, rig.imu_to_cam2(), cam_to_vehicle)
     velocities = oxts.world_velocities(packets, poses, cam_to_vehicle @ rig.imu_to_cam2())
     stamps = [frame * FRAME_NS for frame in frames]
-    stereo = StereoSequence(frames, stamps, pairs, rig.calibration(*image_size(pairs[0][0])), poses, velocities)
+    stereo = StereoSequence(frames, stamps, pairs, rig.calibration(*image_size(pairs[0][0])), poses, velocities,
+                            oxts.vehicle_motion(packets))
     labels = read_labels(training / "label_02" / f"{sequence}.txt")
     truth = frame_truth(labels, frames, stamps, poses, cam_to_vehicle @ rig.cam0_to_cam2())
     return TrackingSequence(stereo, truth)

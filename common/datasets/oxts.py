@@ -28,6 +28,8 @@ EARTH_RADIUS_M: float = 6378137.0
 #: columns of a packet: position/orientation and the body-frame velocities vf, vl, vu.
 LAT, LON, ALT, ROLL, PITCH, YAW = range(6)
 VF, VL, VU = 8, 9, 10
+#: rotation rate about the upward axis of the vehicle-aligned (forward, left, up) frame, rad/s.
+WU = 22
 
 
 @dataclass(frozen=True)
@@ -92,6 +94,11 @@ def vehicle_poses(packets: F64, imu_to_cam: F64, cam_to_vehicle: F64) -> list[F6
     mount = cam_to_vehicle @ imu_to_cam
     mount_inv = np.linalg.inv(mount)  # the calibration's rotations are orthonormal to 1e-7 only
     return [mount @ pose @ mount_inv for pose in imu_poses(packets)]
+
+
+def vehicle_motion(packets: F64) -> F64:
+    """Per packet the forward speed (m/s) and the yaw rate (rad/s): what the INS tells the odometry."""
+    return packets[:, [VF, WU]].copy()
 
 
 def world_velocities(packets: F64, poses: Sequence[F64], imu_to_vehicle: F64) -> F64:

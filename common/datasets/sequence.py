@@ -17,7 +17,7 @@ import numpy.typing as npt
 from common.datasets.images import read_pair
 from common.errors import InputError
 from common.geometry import invert
-from common.messages import Calibration, GroundTruthEgo, Message, StereoFrame
+from common.messages import Calibration, GroundTruthEgo, Message, StereoFrame, VehicleMotion
 
 F64 = npt.NDArray[np.float64]
 
@@ -35,12 +35,15 @@ class StereoSequence:
     calib: Calibration
     poses: list[F64] | None = None  # vehicle -> world, frame 0 identity
     velocities: F64 | None = None  # world frame, m/s
+    motion: F64 | None = None  # the INS's forward speed (m/s) and yaw rate (rad/s) per frame
 
     def __post_init__(self) -> None:
         if not (len(self.frames) == len(self.stamps) == len(self.pairs)):
             raise InputError(f"{len(self.frames)} frames, {len(self.stamps)} times, {len(self.pairs)} image pairs")
         if self.poses is not None and len(self.poses) != len(self.frames):
             raise InputError(f"{len(self.poses)} poses for {len(self.frames)} frames")
+        if self.motion is not None and len(self.motion) != len(self.frames):
+            raise InputError(f"{len(self.motion)} INS samples for {len(self.frames)} frames")
 
     def ego(self, index: int) -> GroundTruthEgo | None:
         if self.poses is None:
@@ -49,8 +52,21 @@ class StereoSequence:
         return GroundTruthEgo(frame_id=self.frames[index], stamp_ns=self.stamps[index],
                               pose=self.poses[index], velocity=velocity)
 
+    def vehicle(self, index: int) -> VehicleMotion | None:
+        if self.motion is None:
+            return None
+        speed, yaw_rate = (float(v) for v in self.motion[index])
+        return VehicleMotion(
+            frame_id=self.frames[index], stamp_ns=self.stamps[index], speed_mps=speed, yaw_rate_rps=yaw_rate,
+            source="oxts",
+        )
+
     def messages(self, truth: Callable[[int], Sequence[Message]] = lambda _: []) -> Iterator[list[Message]]:
-        """Per frame: the stereo pair, the true ego pose, then ``truth(frame)``."""
+        """Per frame: the INS sample, the stereo pair, the true ego pose, then ``truth(frame)``.
+
+        The INS sample goes first, as a vehicle's sensors would have it by the time the frame is
+        processed: ``process`` hands it to the odometry with the frame that follows.
+        """
         for index, (frame, stamp, (left_path, right_path)) in enumerate(
             zip(self.frames, self.stamps, self.pairs, strict=True)
         ):
@@ -58,8 +74,10 @@ class StereoSequence:
             if (left.shape[1], left.shape[0]) != (self.calib.width, self.calib.height):
                 raise InputError(f"{left_path} is {left.shape[1]}x{left.shape[0]}, the sequence is "
                                  f"{self.calib.width}x{self.calib.height}")
-            out: list[Message] = [StereoFrame(frame_id=frame, stamp_ns=stamp, left=left, right=right,
-                                              calib=self.calib, image_format=IMAGE_FORMAT)]
+            vehicle = self.vehicle(index)
+            out: list[Message] = [] if vehicle is None else [vehicle]
+            out.append(StereoFrame(frame_id=frame, stamp_ns=stamp, left=left, right=right,
+                                   calib=self.calib, image_format=IMAGE_FORMAT))
             ego = self.ego(index)
             if ego is not None:
                 out.append(ego)

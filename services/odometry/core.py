@@ -19,9 +19,10 @@ import numpy.typing as npt
 from common.config import Config, OdometryConfig
 from common.errors import CalibrationError, InputError
 from common.geometry import invert
-from common.messages import Calibration, EgoMotion, StereoFrame
+from common.messages import Calibration, EgoMotion, StereoFrame, VehicleMotion
 from services.odometry.circular_matching import close_circle, match_stereo, match_temporal
 from services.odometry.features import FeatureDetector, Features, strongest_per_cell, to_gray
+from services.odometry.ins import SensorNoise, fuse_step, sensor_covariance, sensor_step
 from services.odometry.motion import MotionEstimate, Rig, estimate_motion, project, triangulate
 from services.odometry.subpixel import refine_circle
 
@@ -98,14 +99,26 @@ class StereoOdometry:
         self.pose = np.eye(4)
         self.velocity: F64 | None = None  # last per-frame camera motion
         self.lost = 0
+        self.noise = SensorNoise(
+            config.ins_speed_std_mps,
+            np.radians(config.ins_yaw_rate_std_dps),
+            config.ins_vision_scale_std,
+            np.radians(config.ins_vision_yaw_std_dpm),
+        )
+        self.last_stamp_ns: int | None = None
+        self.sensors: tuple[VehicleMotion, float] | None = None  # this frame's INS sample and its time step (s)
 
     @classmethod
     def from_config(cls, cfg: Config, initial_epoch: int = 0) -> StereoOdometry:
         return cls(cfg.odometry, initial_epoch)
 
-    def process(self, frame: StereoFrame) -> EgoMotion:
-        """Vehicle pose for one stereo frame, following StereoScan's steps."""
+    def process(self, frame: StereoFrame, vehicle: VehicleMotion | None = None) -> EgoMotion:
+        """Vehicle pose for one stereo frame, following StereoScan's steps.
+
+        ``vehicle`` is the INS sample of the same frame; it is used only with ``fuse_ins`` on.
+        """
         rig = rig_of(frame.calib)
+        self.sensors = self.sensor_sample(frame, vehicle)
         view = self.observe(frame)
         if self.anchor is not None and self.anchor.left_gray.shape != view.left_gray.shape:
             self.epoch += 1  # another camera (or resolution): nothing relates it to the old world
@@ -119,6 +132,13 @@ class StereoOdometry:
         return self.advance(frame, view, estimate)
 
     # ------------------------------------------------------------------ steps
+
+    def sensor_sample(self, frame: StereoFrame, vehicle: VehicleMotion | None) -> tuple[VehicleMotion, float] | None:
+        """The INS sample to fuse this frame and the seconds since the last frame, if fusion applies."""
+        last, self.last_stamp_ns = self.last_stamp_ns, frame.stamp_ns
+        if not self.cfg.fuse_ins or vehicle is None or last is None or frame.stamp_ns <= last:
+            return None
+        return vehicle, (frame.stamp_ns - last) * 1e-9
 
     def observe(self, frame: StereoFrame) -> StereoView:
         """Features in both images and their stereo matches (the circle's current leg)."""
@@ -248,13 +268,19 @@ class StereoOdometry:
     def advance(self, frame: StereoFrame, view: StereoView, est: MotionEstimate) -> EgoMotion:
         """A good estimate: pose from the anchor, which this frame now replaces."""
         c = frame.calib.cam_to_vehicle
-        pose = self.anchor_pose @ camera_to_vehicle_motion(est.motion, c)
+        step = camera_to_vehicle_motion(est.motion, c)
+        cov = vehicle_covariance(est.covariance, c)
+        motion = est.motion
+        if self.sensors is not None and self.gap == 1:  # a step of one frame: the sensors measured it too
+            step = fuse_step(step, cov, *self.sensors, self.noise)
+            motion = invert(c) @ invert(step) @ c
+        pose = self.anchor_pose @ step
         delta = invert(self.pose) @ pose
         if self.gap == 1:
-            self.velocity = est.motion
+            self.velocity = motion
         self.pose, self.anchor_pose, self.anchor, self.gap, self.lost = pose, pose, view, 0, 0
         n = int(est.inliers.sum())
-        return self.message(frame, delta, n, n / max(len(est.inliers), 1), True, vehicle_covariance(est.covariance, c))
+        return self.message(frame, delta, n, n / max(len(est.inliers), 1), True, cov)
 
     def bridge(self, frame: StereoFrame, view: StereoView) -> EgoMotion:
         """A failed estimate: predict from the last motion, or re-anchor after too many failures."""
@@ -266,10 +292,13 @@ class StereoOdometry:
             return self.message(frame, np.eye(4), 0, 0.0, False, np.zeros((6, 6)))
         c = frame.calib.cam_to_vehicle
         step = np.eye(4) if self.velocity is None else camera_to_vehicle_motion(self.velocity, c)
+        cov = PREDICTED_COVARIANCE.copy()
+        if self.sensors is not None:  # the vehicle's sensors know this step better than the last motion
+            step, cov = sensor_step(*self.sensors), sensor_covariance(self.sensors[1], self.noise)
         self.pose = self.pose @ step
         if self.usable(view):  # a textured but unmatched frame is a better anchor than an old one
             self.anchor, self.anchor_pose, self.gap = view, self.pose.copy(), 0
-        return self.message(frame, step, 0, 0.0, False, PREDICTED_COVARIANCE.copy())
+        return self.message(frame, step, 0, 0.0, False, cov)
 
     def usable(self, view: StereoView) -> bool:
         """Whether a frame has enough stereo matches to anchor the next estimate."""

@@ -1,4 +1,4 @@
-"""odometry on the bus: ``camera/stereo`` -> ``odometry/ego``.
+"""odometry on the bus: ``camera/stereo`` (and ``vehicle/motion`` when fusing) -> ``odometry/ego``.
 
 World epoch on start: the wall clock in milliseconds. A restarted odometry must re-anchor with
 an epoch larger than any it published before (the voxel mapper and tracker reset their world on
@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from common.config import Config
-from common.messages import EgoMotion, StereoFrame
+from common.messages import EgoMotion, Message, StereoFrame, VehicleMotion
 from services.odometry import StereoOdometry
 from services.shell import Stage
 
@@ -30,17 +30,24 @@ def start_epoch() -> int:
     return time.time_ns() // 1_000_000
 
 
+def inputs(cfg: Config) -> dict[str, type[Message]]:
+    """The camera, and with ``odometry.fuse_ins`` the vehicle's motion sensors, joined per frame."""
+    if cfg.odometry.fuse_ins:
+        return {"camera/stereo": StereoFrame, "vehicle/motion": VehicleMotion}
+    return {"camera/stereo": StereoFrame}
+
+
 def stage(cfg: Config, initial_epoch: int | None = None) -> Stage:
     epoch = start_epoch() if initial_epoch is None else initial_epoch
     core = StereoOdometry.from_config(cfg, initial_epoch=epoch)
     last = EgoMotion(frame_id=-1, stamp_ns=0, world_epoch=epoch)
 
-    def process(frame: StereoFrame) -> tuple[EgoMotion]:
+    def process(frame: StereoFrame, vehicle: VehicleMotion | None = None) -> tuple[EgoMotion]:
         nonlocal last
-        last = core.process(frame)
+        last = core.process(frame, vehicle)
         return (last,)
 
-    def empty(frame: StereoFrame) -> tuple[EgoMotion]:
+    def empty(frame: StereoFrame, *_: Message) -> tuple[EgoMotion]:
         held = EgoMotion(
             frame_id=frame.frame_id,
             stamp_ns=frame.stamp_ns,
@@ -52,7 +59,7 @@ def stage(cfg: Config, initial_epoch: int | None = None) -> Stage:
 
     return Stage(
         name=NAME,
-        inputs={"camera/stereo": StereoFrame},
+        inputs=inputs(cfg),
         outputs=("odometry/ego",),
         process=process,
         empty=empty,
