@@ -353,6 +353,18 @@ class RecordingReader:
             return None
         return json.loads(raw["json"])
 
+    def has_topic(self, topic: str) -> bool:
+        """Whether any key of ``topic`` has a channel: from the summary when the file has one (no chunk
+        is decompressed), otherwise by reading the file through."""
+        try:
+            with open(self.path, "rb") as f:
+                summary = make_reader(f).get_summary()
+            if summary is not None and summary.channels:
+                return any(topic_of(c.topic) == topic for c in summary.channels.values())
+        except Exception:  # no footer, a damaged summary: the streaming path copes and reports
+            pass
+        return any(topic_of(key) == topic for key in self.keys())
+
     def keys(self) -> list[str]:
         """Keys with at least one message, in order of first appearance."""
         seen: dict[str, None] = {}

@@ -1,6 +1,7 @@
 """``stereovox demo``: every service as its own process over Zenoh on loopback, on the bundled recording.
 
-The graph is deploy/local.yaml, the same file ``stereovox launch`` runs. The replay runs in
+The graph is deploy/local.yaml (or another with its placeholders, ``--graph``), the same file
+``stereovox launch`` runs. The replay runs in
 lockstep, so the recording the demo writes matches ``stereovox process`` frame by frame. Any
 stage that dies ends the demo with a non-zero exit naming it; every child is stopped in all cases.
 """
@@ -19,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from common.config import recording_overrides
-from common.errors import StereovoxError
+from common.errors import ConfigError, StereovoxError
 from common.recording import open_recording
 from services.launch import Supervisor
 from services.launch_spec import load_spec
@@ -65,6 +66,10 @@ def run_demo(
         "max_frames": str(frames),
     }
     spec = load_spec(graph, variables)
+    fusing = sorted(name for name, svc in spec.services.items() if "vehicle/motion" in svc.inputs)
+    if fusing and not open_recording(recording).has_topic("vehicle/motion"):
+        raise ConfigError(f"{graph.name}: {', '.join(fusing)} joins every frame with vehicle/motion, "
+                          f"but {recording} has none (a KITTI raw or tracking import has)")
     sup = Supervisor(spec, host=None, log_dir=out / "logs", restart=False, extra_args=recording_settings(info))
     deadline = time.monotonic() + (timeout_s or 120.0 + 5.0 * frames)
     stop = threading.Event()

@@ -107,28 +107,32 @@ def run_recording(
     """Yield the recording's ground truth and sensor inputs untouched and a FrameResult for every stereo frame.
 
     With ``odometry.fuse_ins`` each frame goes to the odometry with the ``vehicle/motion`` sample of
-    the same frame id, which the importers write just before it; a recording whose first frame
-    comes without one has none and is refused.
+    the same frame id, wherever it lies in the file (the bus joins them by id too); the samples are
+    read first, and a recording without any is refused.
     """
+    sensors: dict[int, VehicleMotion] = {}
+    if cfg.odometry.fuse_ins:
+        sensors = {m.frame_id: m for _, m in reader.messages(topics=["vehicle/motion"])}
+        if not sensors:
+            raise ConfigError(f"odometry.fuse_ins needs vehicle/motion (INS) messages; {reader.path} has none")
     pipeline = Pipeline(cfg)
     frames = 0
-    sensors: dict[int, VehicleMotion] = {}
     for key, msg in reader.messages():
         topic = topic_of(key)
         if isinstance(msg, StereoFrame):
             if max_frames is not None and frames >= max_frames:
                 break
-            if cfg.odometry.fuse_ins and frames == 0 and not sensors:
-                raise ConfigError(f"odometry.fuse_ins needs vehicle/motion (INS) messages; {reader.path} has none")
             frames += 1
-            yield pipeline.process(msg, sensors.pop(msg.frame_id, None))
-            sensors.clear()
-        elif isinstance(msg, VehicleMotion):
-            sensors[msg.frame_id] = msg
-            if max_frames is None or frames < max_frames:
-                yield key, msg
-        elif topic.startswith("groundtruth/") and (max_frames is None or frames <= max_frames):
+            yield pipeline.process(msg, sensors.get(msg.frame_id))
+        elif _passed_through(topic, frames, max_frames):
             yield key, msg
+
+
+def _passed_through(topic: str, frames: int, max_frames: int | None) -> bool:
+    """Sensor samples come before their frame, ground truth after it: each is kept while its frame is."""
+    if topic == "vehicle/motion":
+        return max_frames is None or frames < max_frames
+    return topic.startswith("groundtruth/") and (max_frames is None or frames <= max_frames)
 
 
 def process_file(

@@ -16,7 +16,7 @@ from common.config import Config, load_config
 from common.datasets import kitti_raw
 from common.errors import ConfigError
 from common.messages import GroundTruthEgo, StereoFrame, VehicleMotion
-from common.recording import open_recording
+from common.recording import RecordingWriter, open_recording
 from services.demo import BUNDLED
 from services.odometry import StereoOdometry
 from services.odometry.ins import SensorNoise, fuse_step, sensor_step, yaw_of
@@ -43,27 +43,35 @@ def test_fused_step_is_the_inverse_variance_mean_along_the_vision_direction() ->
     noise = SensorNoise(
         speed_mps=0.05, yaw_rate_rps=np.radians(0.5), vision_scale=0.01, vision_yaw_per_m=np.radians(0.5)
     )
-    fused = fuse_step(step, cov, vehicle, DT, noise)
+    fused, fused_cov = fuse_step(step, cov, vehicle, DT, noise)
     length = float(np.linalg.norm(step[0:3, 3]))
     var_vision, var_sensor = (0.01 * length) ** 2, (0.05 * DT) ** 2
-    expected = (length * var_sensor + 1.0 * var_vision) / (var_vision + var_sensor)
+    half_turn = 0.5 * np.radians(0.2)
+    chord = 1.0 * np.sin(half_turn) / half_turn
+    expected = (length * var_sensor + chord * var_vision) / (var_vision + var_sensor)
     assert np.linalg.norm(fused[0:3, 3]) == pytest.approx(expected, rel=1e-9)
     assert 1.0 < expected < 1.05  # closer to the sensors: they are the surer of the two here
     assert np.allclose(fused[0:3, 3] / expected, step[0:3, 3] / length)  # the direction stays the vision's
     yaw_var_vision, yaw_var_sensor = (np.radians(0.5) * length) ** 2, (np.radians(0.5) * DT) ** 2
     expected_yaw = np.radians(0.2) * yaw_var_vision / (yaw_var_vision + yaw_var_sensor)
     assert yaw_of(fused) == pytest.approx(expected_yaw, rel=1e-9)
+    assert fused_cov[5, 5] == pytest.approx(yaw_var_vision * yaw_var_sensor / (yaw_var_vision + yaw_var_sensor))
+    along = fused[0:3, 3] / expected
+    assert along @ fused_cov[0:3, 0:3] @ along == pytest.approx(var_vision * var_sensor / (var_vision + var_sensor))
     # sensors with a huge noise leave the vision alone
     vague = SensorNoise(speed_mps=1e3, yaw_rate_rps=1e3, vision_scale=0.01, vision_yaw_per_m=0.01)
-    assert np.allclose(fuse_step(step, cov, vehicle, DT, vague), step, atol=1e-6)
+    assert np.allclose(fuse_step(step, cov, vehicle, DT, vague)[0], step, atol=1e-6)
 
 
-def test_sensor_step_follows_the_arc() -> None:
-    step = sensor_step(sample(0, speed=10.0, yaw_rate=0.2), DT)
-    assert yaw_of(step) == pytest.approx(0.02)
-    assert np.linalg.norm(step[0:3, 3]) == pytest.approx(1.0)
-    assert step[1, 3] == pytest.approx(np.sin(0.01))  # the chord of a left turn bends left by half the turn
+def test_sensor_step_is_the_chord_of_the_arc() -> None:
+    step = sensor_step(sample(0, speed=10.0, yaw_rate=2.0), DT)  # 1 m along a 0.2 rad left turn
+    chord = 2.0 * (1.0 / 0.2) * np.sin(0.1)
+    assert yaw_of(step) == pytest.approx(0.2)
+    assert np.linalg.norm(step[0:3, 3]) == pytest.approx(chord, rel=1e-12)
+    assert np.arctan2(step[1, 3], step[0, 3]) == pytest.approx(0.1)  # it points half the turn to the left
     assert step[2, 3] == 0.0
+    straight = sensor_step(sample(0, speed=10.0, yaw_rate=0.0), DT)
+    assert np.allclose(straight[0:3, 3], [1.0, 0.0, 0.0]) and np.allclose(straight[0:3, 0:3], np.eye(3))
 
 
 @pytest.mark.timeout(60)
@@ -128,7 +136,58 @@ def test_raw_import_puts_the_ins_before_each_frame(raw_drive: Path) -> None:
     for i, s in sensors.items():
         assert isinstance(truth[i], GroundTruthEgo) and s.source == "oxts"
         assert s.speed_mps == pytest.approx(np.linalg.norm(truth[i].velocity), abs=0.1)  # ~10.5 m/s
-        assert abs(s.yaw_rate_rps) < 0.1
+
+
+def test_ins_yaw_rate_turns_the_way_the_oxts_heading_does() -> None:
+    """The gyro column and its sign against the heading the true poses come from (the drive bends
+    right over frames 36-50)."""
+    seq = kitti_raw.load(shared_path(*DRIVE))
+    assert seq.motion is not None and seq.poses is not None
+    dts = np.diff(seq.stamps) * 1e-9
+    gyro = seq.motion[1:, 1] * dts
+    steps = [np.linalg.inv(a) @ b for a, b in zip(seq.poses[:-1], seq.poses[1:], strict=True)]
+    heading = np.array([yaw_of(step) for step in steps])
+    assert np.corrcoef(gyro, heading)[0, 1] > 0.9
+    assert gyro[35:].sum() == pytest.approx(heading[35:].sum(), rel=0.1) and heading[35:].sum() < -0.01
+    travelled = np.linalg.norm([step[0:3, 3] for step in steps], axis=1)
+    assert (seq.motion[1:, 0] * dts).sum() == pytest.approx(travelled.sum(), rel=0.02)
+
+
+@pytest.mark.timeout(300)
+def test_process_pairs_each_frame_with_its_own_sample_wherever_it_lies(raw_drive: Path, tmp_path: Path) -> None:
+    """A bus recording may hold a sample after its frame: the pairing is by frame id, not by order."""
+    late = tmp_path / "late.mcap"
+    reader = open_recording(raw_drive)
+    with RecordingWriter(late) as writer:
+        writer.describe(reader.config_dict(), reader.info())
+        held: tuple[str, VehicleMotion] | None = None
+        for key, msg in reader.messages():
+            if isinstance(msg, VehicleMotion):
+                held = (key, msg)
+                continue
+            writer.write(key, msg)
+            if isinstance(msg, StereoFrame) and held is not None:
+                writer.write(*held)  # right after the frame it belongs to
+                held = None
+    runs = {}
+    for name, source in (("in order", raw_drive), ("late", late)):
+        runs[name] = tmp_path / f"{name}.mcap"
+        process_file(source, runs[name], max_frames=4, with_frames=False, sets=["odometry.fuse_ins=true"])
+    first, second = (open_recording(path).by_topic("odometry/ego") for path in runs.values())
+    assert sorted(first) == sorted(second) == [0, 1, 2, 3]
+    for i in first:
+        assert np.array_equal(first[i].pose, second[i].pose), i
+
+
+def test_demo_refuses_a_fusing_graph_on_a_recording_without_sensors(tmp_path: Path) -> None:
+    proc = subprocess.run(
+        stereovox_cmd("demo", "--graph", str(REPO / "deploy" / "local-ins.yaml"), "--max-frames", "2",
+                      "--out", str(tmp_path)),
+        cwd=REPO, capture_output=True, text=True, timeout=60,
+    )
+    assert proc.returncode == 2
+    assert "odometry joins every frame with vehicle/motion" in proc.stderr and "urban.mcap has none" in proc.stderr
+    assert not (tmp_path / "logs").exists()  # refused before any process was started
 
 
 def test_check_wants_the_sensor_input_of_a_fusing_odometry(tmp_path: Path) -> None:

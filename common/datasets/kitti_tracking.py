@@ -68,5 +68,6 @@ def import_sequence(training: Path, sequence: str, out: Path, max_frames: int | 
     def truth(frame: int) -> list[Message]:
         return [loaded.truth[frame], *lidar.messages(frame)]
 
-    info = recording_info("kitti-tracking", sequence, len(seq.frames), seq.calib, lidar_frames=lidar.frames)
+    info = recording_info("kitti-tracking", sequence, len(seq.frames), seq.calib, lidar_frames=lidar.frames,
+                          frame_rate_hz=1e9 / FRAME_NS)
     return write_frames(out, info, seq.messages(truth), f"import tracking {sequence}")

@@ -105,8 +105,9 @@ class StereoOdometry:
             config.ins_vision_scale_std,
             np.radians(config.ins_vision_yaw_std_dpm),
         )
-        self.last_stamp_ns: int | None = None
-        self.sensors: tuple[VehicleMotion, float] | None = None  # this frame's INS sample and its time step (s)
+        self.sensors: VehicleMotion | None = None  # this frame's INS sample, when fusing
+        self.anchor_stamp_ns = 0  # when the anchor was seen
+        self.pose_stamp_ns = 0  # when the last published pose was
 
     @classmethod
     def from_config(cls, cfg: Config, initial_epoch: int = 0) -> StereoOdometry:
@@ -118,7 +119,7 @@ class StereoOdometry:
         ``vehicle`` is the INS sample of the same frame; it is used only with ``fuse_ins`` on.
         """
         rig = rig_of(frame.calib)
-        self.sensors = self.sensor_sample(frame, vehicle)
+        self.sensors = vehicle if self.cfg.fuse_ins else None
         view = self.observe(frame)
         if self.anchor is not None and self.anchor.left_gray.shape != view.left_gray.shape:
             self.epoch += 1  # another camera (or resolution): nothing relates it to the old world
@@ -133,12 +134,10 @@ class StereoOdometry:
 
     # ------------------------------------------------------------------ steps
 
-    def sensor_sample(self, frame: StereoFrame, vehicle: VehicleMotion | None) -> tuple[VehicleMotion, float] | None:
-        """The INS sample to fuse this frame and the seconds since the last frame, if fusion applies."""
-        last, self.last_stamp_ns = self.last_stamp_ns, frame.stamp_ns
-        if not self.cfg.fuse_ins or vehicle is None or last is None or frame.stamp_ns <= last:
-            return None
-        return vehicle, (frame.stamp_ns - last) * 1e-9
+    @staticmethod
+    def seconds(later_ns: int, earlier_ns: int) -> float | None:
+        """Seconds between two frame stamps; None when they do not increase."""
+        return (later_ns - earlier_ns) * 1e-9 if later_ns > earlier_ns else None
 
     def observe(self, frame: StereoFrame) -> StereoView:
         """Features in both images and their stereo matches (the circle's current leg)."""
@@ -263,6 +262,7 @@ class StereoOdometry:
         self.lost = 0
         self.velocity = None
         self.anchor = view if self.usable(view) else None
+        self.anchor_stamp_ns = self.pose_stamp_ns = frame.stamp_ns
         return self.message(frame, np.eye(4), 0, 0.0, True, np.zeros((6, 6)))
 
     def advance(self, frame: StereoFrame, view: StereoView, est: MotionEstimate) -> EgoMotion:
@@ -271,14 +271,16 @@ class StereoOdometry:
         step = camera_to_vehicle_motion(est.motion, c)
         cov = vehicle_covariance(est.covariance, c)
         motion = est.motion
-        if self.sensors is not None and self.gap == 1:  # a step of one frame: the sensors measured it too
-            step = fuse_step(step, cov, *self.sensors, self.noise)
+        dt = self.seconds(frame.stamp_ns, self.anchor_stamp_ns)
+        if self.sensors is not None and self.gap == 1 and dt is not None:  # one frame: the sensors measured it too
+            step, cov = fuse_step(step, cov, self.sensors, dt, self.noise)
             motion = invert(c) @ invert(step) @ c
         pose = self.anchor_pose @ step
         delta = invert(self.pose) @ pose
         if self.gap == 1:
             self.velocity = motion
         self.pose, self.anchor_pose, self.anchor, self.gap, self.lost = pose, pose, view, 0, 0
+        self.anchor_stamp_ns = self.pose_stamp_ns = frame.stamp_ns
         n = int(est.inliers.sum())
         return self.message(frame, delta, n, n / max(len(est.inliers), 1), True, cov)
 
@@ -293,11 +295,14 @@ class StereoOdometry:
         c = frame.calib.cam_to_vehicle
         step = np.eye(4) if self.velocity is None else camera_to_vehicle_motion(self.velocity, c)
         cov = PREDICTED_COVARIANCE.copy()
-        if self.sensors is not None:  # the vehicle's sensors know this step better than the last motion
-            step, cov = sensor_step(*self.sensors), sensor_covariance(self.sensors[1], self.noise)
+        dt = self.seconds(frame.stamp_ns, self.pose_stamp_ns)
+        if self.sensors is not None and dt is not None:  # the sensors know this step better than the last motion
+            step, cov = sensor_step(self.sensors, dt), sensor_covariance(self.sensors, dt, self.noise)
         self.pose = self.pose @ step
+        self.pose_stamp_ns = frame.stamp_ns
         if self.usable(view):  # a textured but unmatched frame is a better anchor than an old one
             self.anchor, self.anchor_pose, self.gap = view, self.pose.copy(), 0
+            self.anchor_stamp_ns = frame.stamp_ns
         return self.message(frame, step, 0, 0.0, False, cov)
 
     def usable(self, view: StereoView) -> bool:

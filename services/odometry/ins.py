@@ -48,46 +48,73 @@ def yaw_of(step: F64) -> float:
     return float(np.arctan2(step[1, 0], step[0, 0]))
 
 
-def fuse_step(step: F64, covariance: F64, vehicle: VehicleMotion, dt: float, noise: SensorNoise) -> F64:
-    """A vehicle step (the current vehicle frame in the previous one) corrected by the sensors.
+def fuse_step(
+    step: F64, covariance: F64, vehicle: VehicleMotion, dt: float, noise: SensorNoise
+) -> tuple[F64, F64]:
+    """A vehicle step (the current vehicle frame in the previous one) corrected by the sensors, and
+    its covariance.
 
     ``covariance`` is the vision's, over (x, y, z, roll, pitch, yaw) of the step. Distance is
     fused along the step's own direction, so a vision step that is well placed but too long is
-    shortened without being turned.
+    shortened without being turned. The published covariance is the vision's with the variance
+    along the step and that of yaw replaced by the fused ones.
     """
-    out = step.copy()
+    out, cov = step.copy(), covariance.copy()
     translation = step[0:3, 3]
     length = float(np.linalg.norm(translation))
-    sensor_length = abs(vehicle.speed_mps) * dt
+    sensor_length = sensor_distance(vehicle, dt)
     length_var_sensor = (noise.speed_mps * dt) ** 2
     if length > 1e-6:
         direction = translation / length
-        length_var = float(direction @ covariance[0:3, 0:3] @ direction) + (noise.vision_scale * length) ** 2
-        fused = (length * length_var_sensor + sensor_length * length_var) / max(length_var + length_var_sensor, 1e-18)
-        out[0:3, 3] = direction * fused
+        own_var = float(direction @ covariance[0:3, 0:3] @ direction)
+        length_var = own_var + (noise.vision_scale * length) ** 2
+        out[0:3, 3] = direction * _mean(length, length_var, sensor_length, length_var_sensor)
+        along = np.outer(direction, direction)
+        cov[0:3, 0:3] += (_fused_var(length_var, length_var_sensor) - own_var) * along
     yaw = yaw_of(step)
     yaw_var = float(covariance[5, 5]) + (noise.vision_yaw_per_m * length) ** 2
     yaw_var_sensor = (noise.yaw_rate_rps * dt) ** 2
-    fused_yaw = (yaw * yaw_var_sensor + vehicle.yaw_rate_rps * dt * yaw_var) / max(yaw_var + yaw_var_sensor, 1e-18)
+    fused_yaw = _mean(yaw, yaw_var, vehicle.yaw_rate_rps * dt, yaw_var_sensor)
     out[0:3, 0:3] = _yaw_rotation(fused_yaw - yaw) @ step[0:3, 0:3]
-    return out
+    cov[5, 5] = _fused_var(yaw_var, yaw_var_sensor)
+    return out, cov
+
+
+def _mean(a: float, var_a: float, b: float, var_b: float) -> float:
+    """Inverse-variance mean of two measurements of one quantity."""
+    return (a * var_b + b * var_a) / max(var_a + var_b, 1e-18)
+
+
+def _fused_var(var_a: float, var_b: float) -> float:
+    return var_a * var_b / max(var_a + var_b, 1e-18)
+
+
+def sensor_distance(vehicle: VehicleMotion, dt: float) -> float:
+    """Straight-line length of the step: the chord of the arc the vehicle drove."""
+    half_turn = 0.5 * vehicle.yaw_rate_rps * dt
+    return abs(vehicle.speed_mps) * dt * float(np.sinc(half_turn / np.pi))
 
 
 def sensor_step(vehicle: VehicleMotion, dt: float) -> F64:
-    """The step the sensors alone give: along the arc that speed and yaw rate describe, on the road plane."""
+    """The step the sensors alone give: the chord of the arc that speed and yaw rate describe."""
     yaw = vehicle.yaw_rate_rps * dt
-    distance = vehicle.speed_mps * dt
     out = np.eye(4)
     out[0:3, 0:3] = _yaw_rotation(yaw)
-    out[0:3, 3] = distance * np.array([np.cos(0.5 * yaw), np.sin(0.5 * yaw), 0.0])
+    out[0:3, 3] = np.sign(vehicle.speed_mps) * sensor_distance(vehicle, dt) * np.array(
+        [np.cos(0.5 * yaw), np.sin(0.5 * yaw), 0.0]
+    )
     return out
 
 
-def sensor_covariance(dt: float, noise: SensorNoise) -> F64:
-    """Covariance of :func:`sensor_step`: along and across the step from speed, yaw from the gyro.
+def sensor_covariance(vehicle: VehicleMotion, dt: float, noise: SensorNoise) -> F64:
+    """Covariance of :func:`sensor_step`: along the step from speed, across it from the yaw's
+    uncertainty swinging the chord, yaw from the gyro.
 
-    Roll and pitch are not measured; the road plane is an assumption, so they get a vague 1 degree.
+    Height, roll and pitch are not measured; the road plane is an assumption, so they get the
+    along-track value and a vague 1 degree.
     """
     along = (noise.speed_mps * dt) ** 2
+    yaw_var = (noise.yaw_rate_rps * dt) ** 2
+    across = (0.5 * sensor_distance(vehicle, dt)) ** 2 * yaw_var
     vague = np.radians(1.0) ** 2
-    return np.diag([along, along, along, vague, vague, (noise.yaw_rate_rps * dt) ** 2])
+    return np.diag([along, across, along, vague, vague, yaw_var])
