@@ -26,9 +26,11 @@ from conftest import REPO, Processes, free_port, stereovox_cmd, wait_for
 
 from common.bus import open_session, subscribe, watch_alive
 from common.config import BusConfig
+from common.errors import ConfigError
 from common.evaluation.evaluate import evaluate_recording
 from common.messages import Obstacles, key_for
 from common.recording import open_recording
+from services.launch_spec import load_spec
 from services.netns import two_namespaces
 from services.pipeline import process_file
 
@@ -48,6 +50,8 @@ def _spec_variant(tmp_path: Path, base: str, name: str, change: dict) -> Path:
     """A copy of a deploy spec with some services changed; Zenoh files stay those beside the original."""
     raw = yaml.safe_load((DEPLOY / base).read_text())
     raw["zenoh"] = {role: str(DEPLOY / f) for role, f in raw.get("zenoh", {}).items()}
+    if "extends" in raw:
+        raw["extends"] = str(DEPLOY / raw["extends"])
     for service, fields in change.items():
         if fields is None:
             raw["services"].pop(service)
@@ -67,6 +71,26 @@ def test_check_accepts_every_deploy_spec() -> None:
         proc = _check(spec, *values)
         assert proc.returncode == 0, f"{spec.name}: {proc.stderr}"
         assert "OK" in proc.stdout
+
+
+def test_a_spec_extends_another_and_names_only_what_it_changes(tmp_path: Path) -> None:
+    variant = tmp_path / "variant.yaml"
+    variant.write_text(yaml.safe_dump({
+        "extends": str(DEPLOY / "local.yaml"),
+        "name": "variant",
+        "services": {"tracker": {"command": ["run", "tracker", "--set", "tracker.gate=2.0"],
+                                 "inputs": {"odometry/ego": {"queue": "fifo", "schema": "stereovox.EgoMotion/1"}}}},
+    }))
+    variables = {"port": "1", "out": "o", "recording": "r", "max_frames": "1"}
+    base, spec = load_spec(DEPLOY / "local.yaml", variables), load_spec(variant, variables)
+    assert spec.name == "variant" and sorted(spec.services) == sorted(base.services)
+    assert spec.services["tracker"].command == ["run", "tracker", "--set", "tracker.gate=2.0"]  # lists: replaced
+    assert spec.services["tracker"].inputs == base.services["tracker"].inputs  # mappings: merged key by key
+    assert spec.services["odometry"] == base.services["odometry"] and spec.zenoh == base.zenoh
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("extends: nowhere.yaml\n")
+    with pytest.raises(ConfigError, match=r"broken\.yaml: extends nowhere\.yaml: cannot read"):
+        load_spec(broken, variables)
 
 
 def test_check_rejects_a_key_without_publisher(tmp_path: Path) -> None:
