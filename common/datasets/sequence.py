@@ -65,7 +65,7 @@ class StereoSequence:
         """Per frame: the INS sample, the stereo pair, the true ego pose, then ``truth(frame)``.
 
         The INS sample goes first, as a vehicle's sensors would have it by the time the frame is
-        processed: ``process`` hands it to the odometry with the frame that follows.
+        processed; the odometry pairs the two by frame id.
         """
         for index, (frame, stamp, (left_path, right_path)) in enumerate(
             zip(self.frames, self.stamps, self.pairs, strict=True)
