@@ -59,6 +59,7 @@ class Stage:
     empty: Callable[..., Sequence[Message]]  # outputs for a frame the core failed on
     degenerate: Callable[[], bool] = field(default=_never_degenerate)  # did the last frame degrade?
     counters: Callable[[], dict[str, Any]] = field(default=_no_detail)  # the core's own counts, for Health
+    optional: tuple[str, ...] = ()  # inputs taken when there, never waited for (services/join.py); None if not
 
 
 class _Throttle:
@@ -92,10 +93,13 @@ class StageLoop:
             for topic, kind in stage.inputs.items()
         }
         self.pubs = [Publisher(session, key_for(topic, vehicle)) for topic in stage.outputs]
-        self.joiner = FrameJoiner(list(stage.inputs), capacity=4 * depth)
+        self.joiner = FrameJoiner(list(stage.inputs), capacity=4 * depth, optional=stage.optional)
         self.health = StageHealth(stage.name, list(self.subs.values()))
         self.health.extra["join_evicted"] = lambda: self.joiner.evicted
         self.health.extra["join_pending"] = self.joiner.pending
+        if stage.optional:
+            self.health.extra["join_without_optional"] = lambda: self.joiner.without_optional
+            self.health.extra["join_late_optional"] = lambda: self.joiner.late
         self.health.extra["policy"] = lambda: self.policy
         self.health.extra["core"] = stage.counters
         self._ready: deque[dict[str, Message]] = deque()
@@ -128,25 +132,26 @@ class StageLoop:
                     self._ready.append(frame)
 
     def _process(self, frame: dict[str, Message]) -> None:
-        inputs = [frame[topic] for topic in self.stage.inputs]
+        inputs = [frame.get(topic) for topic in self.stage.inputs]  # None: an optional input not there
+        present = [m for m in inputs if m is not None]
         start_ns, t0 = now_ns(), time.perf_counter()
         try:
             outputs = self.stage.process(*inputs)
             if self.stage.degenerate():
                 self.health.degenerate += 1
         except Exception as exc:  # any core failure on one frame: count it, publish empty, go on
-            outputs = self._failed(inputs, exc)
+            outputs = self._failed(inputs, present[0].frame_id, exc)
             if outputs is None:
                 return
-        stamped = [stamp_output(out, inputs, self.stage.name, start_ns) for out in outputs]
+        stamped = [stamp_output(out, present, self.stage.name, start_ns) for out in outputs]
         for pub, out in zip(self.pubs, stamped, strict=True):
             pub.put(out)
         self.health.frames_out += 1
         self.health.processed((time.perf_counter() - t0) * 1e3)
 
-    def _failed(self, inputs: list[Message], exc: Exception) -> Sequence[Message] | None:
+    def _failed(self, inputs: list[Message | None], frame_id: int, exc: Exception) -> Sequence[Message] | None:
         self.health.errors += 1
-        self.health.last_error = f"frame {inputs[0].frame_id}: {type(exc).__name__}: {exc}"
+        self.health.last_error = f"frame {frame_id}: {type(exc).__name__}: {exc}"
         if self._error_log():
             log.error(
                 "%s failed on %s (%d errors so far); publishing empty outputs",
@@ -155,7 +160,7 @@ class StageLoop:
         try:
             return self.stage.empty(*inputs)
         except Exception as empty_exc:  # the inputs are too broken to even describe an empty frame
-            log.error("%s: no empty output for frame %d: %s", self.stage.name, inputs[0].frame_id, empty_exc)
+            log.error("%s: no empty output for frame %d: %s", self.stage.name, frame_id, empty_exc)
             return None
 
     def close(self) -> None:

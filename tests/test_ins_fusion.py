@@ -200,23 +200,36 @@ def test_check_wants_the_sensor_input_of_a_fusing_odometry(tmp_path: Path) -> No
     assert "service odometry: the code reads vehicle/motion, the spec does not list it" in proc.stderr
 
 
+def without_sample(source: Path, out: Path, frame_id: int) -> Path:
+    """A copy of a recording whose INS dropped the sample of one frame."""
+    reader = open_recording(source)
+    with RecordingWriter(out) as writer:
+        writer.describe(reader.config_dict(), reader.info())
+        for key, msg in reader.messages():
+            if not (isinstance(msg, VehicleMotion) and msg.frame_id == frame_id):
+                writer.write(key, msg)
+    return out
+
+
 @pytest.mark.timeout(400)
 def test_fusing_graph_over_the_bus_matches_process(raw_drive: Path, tmp_path: Path) -> None:
-    """deploy/local-ins.yaml: the replay publishes the INS, the odometry joins it with each frame."""
+    """deploy/local-ins.yaml: the replay publishes the INS, the odometry joins it with each frame;
+    frame 2's sample is missing, and that frame goes on with vision alone on both paths."""
     frames = 5
+    gappy = without_sample(raw_drive, tmp_path / "gappy.mcap", 2)
     proc = subprocess.run(
-        stereovox_cmd("demo", "--graph", str(REPO / "deploy" / "local-ins.yaml"), "--recording", str(raw_drive),
+        stereovox_cmd("demo", "--graph", str(REPO / "deploy" / "local-ins.yaml"), "--recording", str(gappy),
                       "--max-frames", str(frames), "--out", str(tmp_path / "demo"), "--json"),
         cwd=REPO, capture_output=True, text=True, timeout=360, start_new_session=True,
     )
     assert proc.returncode == 0, f"demo failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
     assert json.loads(proc.stdout.strip().splitlines()[-1])["frames"] == frames
     run = open_recording(tmp_path / "demo" / "run.mcap")
-    assert sorted(run.by_topic("vehicle/motion")) == list(range(frames))
+    assert sorted(run.by_topic("vehicle/motion")) == [0, 1, 3, 4]
     distributed = run.by_topic("odometry/ego")
     fused, plain = tmp_path / "fused.mcap", tmp_path / "plain.mcap"
-    process_file(raw_drive, fused, max_frames=frames, with_frames=False, sets=["odometry.fuse_ins=true"])
-    process_file(raw_drive, plain, max_frames=frames, with_frames=False)
+    process_file(gappy, fused, max_frames=frames, with_frames=False, sets=["odometry.fuse_ins=true"])
+    process_file(gappy, plain, max_frames=frames, with_frames=False)
     in_process = open_recording(fused).by_topic("odometry/ego")
     unfused = open_recording(plain).by_topic("odometry/ego")
     assert sorted(distributed) == sorted(in_process) == list(range(frames))

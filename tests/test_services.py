@@ -74,6 +74,22 @@ def test_joiner_stays_bounded_and_counts_evictions() -> None:
         join.add("clusters", clusters(1))
 
 
+def test_an_optional_input_is_taken_when_there_and_never_waited_for() -> None:
+    join = FrameJoiner(["frame", "ins"], optional=["ins"])
+    assert join.add("ins", ego(1)) is None  # the sample first, as a replay sends it
+    done = join.add("frame", clusters(1))
+    assert done is not None and set(done) == {"frame", "ins"} and done["ins"].frame_id == 1
+    done = join.add("frame", clusters(2))  # no sample for frame 2: it goes on without one
+    assert done is not None and set(done) == {"frame"} and join.without_optional == 1
+    assert join.add("ins", ego(2)) is None and join.late == 1  # too late for its frame: discarded
+    assert join.pending() == 0
+    join.add("ins", ego(4))
+    done = join.add("frame", clusters(4))
+    assert done is not None and set(done) == {"frame", "ins"} and join.without_optional == 1
+    with pytest.raises(ValueError, match="some, not all"):
+        FrameJoiner(["ins"], optional=["ins"])
+
+
 def test_single_input_frames_complete_at_once() -> None:
     join = FrameJoiner(["frame"])
     out = join.add("frame", ego(5))

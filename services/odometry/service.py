@@ -31,7 +31,10 @@ def start_epoch() -> int:
 
 
 def inputs(cfg: Config) -> dict[str, type[Message]]:
-    """The camera, and with ``odometry.fuse_ins`` the vehicle's motion sensors, joined per frame."""
+    """The camera, and with ``odometry.fuse_ins`` the vehicle's motion sensors, joined per frame.
+
+    The sensors are an optional input: a frame whose sample has not come goes on with vision alone.
+    """
     if cfg.odometry.fuse_ins:
         return {"camera/stereo": StereoFrame, "vehicle/motion": VehicleMotion}
     return {"camera/stereo": StereoFrame}
@@ -60,6 +63,7 @@ def stage(cfg: Config, initial_epoch: int | None = None) -> Stage:
     return Stage(
         name=NAME,
         inputs=inputs(cfg),
+        optional=("vehicle/motion",) if cfg.odometry.fuse_ins else (),
         outputs=("odometry/ego",),
         process=process,
         empty=empty,
