@@ -10,8 +10,8 @@ never silent. Pure: no bus, so it is tested on its own.
 An *optional* input (the odometry's INS samples) is taken when it is there by the time the
 required ones complete a frame, and never waited for: a frame is not lost to a sensor that
 dropped a sample, it goes on without it (counted). A replay publishes the sample before its
-frame, so in lockstep it is always there first. A sample that comes after its frame went is
-counted and discarded.
+frame, so in lockstep it is always there first. A sample that comes after its frame went waits
+as a partial frame that cannot complete, and is evicted like one.
 """
 
 from __future__ import annotations
@@ -34,19 +34,14 @@ class FrameJoiner:
             raise ValueError(f"optional inputs {sorted(self.optional)} must be some, not all, of {self.names}")
         self.capacity = max(1, capacity)
         self._pending: dict[int, dict[str, Message]] = {}
-        self._released = -1  # newest frame id handed out
         self.evicted = 0  # partial frames given up on
         self.replaced = 0  # a second message for an input of a pending frame (the newer one is kept)
         self.without_optional = 0  # frames handed out before an optional input arrived
-        self.late = 0  # optional inputs that came after their frame had gone
 
     def add(self, name: str, msg: Message) -> dict[str, Message] | None:
         """Add one input message; return the frame's inputs (by name) once the required ones are there."""
         if name not in self.names:
             raise ValueError(f"unknown input {name!r}; this joiner takes {self.names}")
-        if name in self.optional and msg.frame_id <= self._released:
-            self.late += 1
-            return None
         parts = self._pending.setdefault(msg.frame_id, {})
         if name in parts:
             self.replaced += 1
@@ -54,7 +49,6 @@ class FrameJoiner:
         if all(n in parts for n in self.required):
             del self._pending[msg.frame_id]
             self._evict_older_than(msg.frame_id)
-            self._released = max(self._released, msg.frame_id)
             self.without_optional += len(parts) < len(self.names)
             return parts
         while len(self._pending) > self.capacity:

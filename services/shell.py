@@ -99,7 +99,6 @@ class StageLoop:
         self.health.extra["join_pending"] = self.joiner.pending
         if stage.optional:
             self.health.extra["join_without_optional"] = lambda: self.joiner.without_optional
-            self.health.extra["join_late_optional"] = lambda: self.joiner.late
         self.health.extra["policy"] = lambda: self.policy
         self.health.extra["core"] = stage.counters
         self._ready: deque[dict[str, Message]] = deque()

@@ -81,11 +81,11 @@ def test_an_optional_input_is_taken_when_there_and_never_waited_for() -> None:
     assert done is not None and set(done) == {"frame", "ins"} and done["ins"].frame_id == 1
     done = join.add("frame", clusters(2))  # no sample for frame 2: it goes on without one
     assert done is not None and set(done) == {"frame"} and join.without_optional == 1
-    assert join.add("ins", ego(2)) is None and join.late == 1  # too late for its frame: discarded
-    assert join.pending() == 0
+    assert join.add("ins", ego(2)) is None and join.pending() == 1  # too late for its frame: it waits ...
     join.add("ins", ego(4))
     done = join.add("frame", clusters(4))
     assert done is not None and set(done) == {"frame", "ins"} and join.without_optional == 1
+    assert join.pending() == 0 and join.evicted == 1  # ... and is evicted once a newer frame is done
     with pytest.raises(ValueError, match="some, not all"):
         FrameJoiner(["ins"], optional=["ins"])
 
