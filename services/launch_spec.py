@@ -94,6 +94,19 @@ def _fill(value: Any, variables: dict[str, str], missing: set[str]) -> Any:
     return value
 
 
+def _read_mapping(p: Path) -> dict[str, Any]:
+    """A spec file's YAML, which must be a mapping; anything else names the file."""
+    try:
+        raw = yaml.safe_load(p.read_text())
+    except OSError as exc:
+        raise ConfigError(f"cannot read launch spec {p}: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{p}: not valid YAML: {exc}") from None
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{p}: the top level must be a mapping")
+    return raw
+
+
 def _extended(raw: dict[str, Any], path: Path, depth: int = 0) -> dict[str, Any]:
     """A spec with ``extends: OTHER.yaml`` is that spec with its own mappings merged over it, key by
     key (lists, such as a command, are replaced whole): a variant names only what it changes."""
@@ -104,13 +117,9 @@ def _extended(raw: dict[str, Any], path: Path, depth: int = 0) -> dict[str, Any]
     if depth >= 4:
         raise ConfigError(f"{path}: extends {base_name}: more than 4 levels of extends")
     try:
-        base = yaml.safe_load(base_path.read_text())
-    except OSError as exc:
-        raise ConfigError(f"{path}: extends {base_name}: cannot read {base_path}: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: extends {base_name}: not valid YAML: {exc}") from None
-    if not isinstance(base, dict):
-        raise ConfigError(f"{path}: extends {base_name}: its top level must be a mapping")
+        base = _read_mapping(base_path)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: extends {base_name}: {exc}") from None
     base = _extended(base, base_path, depth + 1)
     # the base's Zenoh files are beside the base, wherever the variant is
     base["zenoh"] = {role: str((base_path.parent / str(f)).resolve()) for role, f in (base.get("zenoh") or {}).items()}
@@ -126,15 +135,7 @@ def _merged(base: Any, over: Any) -> Any:
 def load_spec(path: str | Path, variables: dict[str, str] | None = None, strict: bool = True) -> LaunchSpec:
     """Read a spec and fill its placeholders; ``strict`` refuses placeholders left unfilled."""
     p = Path(path)
-    try:
-        raw = yaml.safe_load(p.read_text())
-    except OSError as exc:
-        raise ConfigError(f"cannot read launch spec {p}: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{p}: not valid YAML: {exc}") from None
-    if not isinstance(raw, dict):
-        raise ConfigError(f"{p}: the top level must be a mapping")
-    raw = _extended(raw, p)
+    raw = _extended(_read_mapping(p), p)
     missing: set[str] = set()
     raw = _fill(raw, dict(variables or {}), missing)
     if strict and missing:

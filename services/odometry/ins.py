@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from common.geometry import rot_z
 from common.messages import VehicleMotion
 
 F64 = npt.NDArray[np.float64]
@@ -36,11 +37,6 @@ class SensorNoise:
     yaw_rate_rps: float
     vision_scale: float = 0.0
     vision_yaw_per_m: float = 0.0
-
-
-def _yaw_rotation(angle: float) -> F64:
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def yaw_of(step: F64) -> float:
@@ -75,7 +71,7 @@ def fuse_step(
     yaw_var = float(covariance[5, 5]) + (noise.vision_yaw_per_m * length) ** 2
     yaw_var_sensor = (noise.yaw_rate_rps * dt) ** 2
     fused_yaw = _mean(yaw, yaw_var, vehicle.yaw_rate_rps * dt, yaw_var_sensor)
-    out[0:3, 0:3] = _yaw_rotation(fused_yaw - yaw) @ step[0:3, 0:3]
+    out[0:3, 0:3] = rot_z(fused_yaw - yaw) @ step[0:3, 0:3]
     cov[5, 5] = _fused_var(yaw_var, yaw_var_sensor)
     return out, cov
 
@@ -99,7 +95,7 @@ def sensor_step(vehicle: VehicleMotion, dt: float) -> F64:
     """The step the sensors alone give: the chord of the arc that speed and yaw rate describe."""
     yaw = vehicle.yaw_rate_rps * dt
     out = np.eye(4)
-    out[0:3, 0:3] = _yaw_rotation(yaw)
+    out[0:3, 0:3] = rot_z(yaw)
     out[0:3, 3] = np.sign(vehicle.speed_mps) * sensor_distance(vehicle, dt) * np.array(
         [np.cos(0.5 * yaw), np.sin(0.5 * yaw), 0.0]
     )
