@@ -24,7 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "topics": ("services.topics", "list, echo or measure the rate of bus keys"),
     "simulate": ("common.scenarios.simulate", "render a synthetic stereo driving scenario with ground truth"),
     "evaluate": ("common.evaluation.evaluate", "score a run against its ground truth"),
-    "import": ("common.datasets.importer", "import KITTI or Middlebury data into a recording"),
+    "import": ("common.datasets.importer", "import KITTI, Middlebury or a ROS 2 bag into a recording"),
     "process": ("services.pipeline", "run every stage in one process over a recording (no bus)"),
     "demo": ("services.demo", "run the whole pipeline as separate processes on the bundled recording"),
     "launch": ("services.launch", "start and supervise the services a launch spec puts on this host"),

@@ -1,4 +1,4 @@
-"""``stereovox import``: KITTI (raw, tracking, odometry) and Middlebury data into a recording.
+"""``stereovox import``: KITTI (raw, tracking, odometry), Middlebury and ROS 2 bags into a recording.
 
 Each sub-command writes one recording holding the stereo frames and every kind of ground truth
 the dataset has, plus the info metadata ``process`` and ``evaluate`` read (source, frame rate,
@@ -12,7 +12,7 @@ import argparse
 import time
 from pathlib import Path
 
-from common.datasets import kitti_odometry, kitti_raw, kitti_tracking, middlebury
+from common.datasets import kitti_odometry, kitti_raw, kitti_tracking, middlebury, rosbag2
 from common.errors import ConfigError
 
 
@@ -37,6 +37,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     mb = sub.add_parser("middlebury", help="Middlebury 2003 scenes (im2, im6, disp2), one frame each")
     mb.add_argument("folder", type=Path, help="a scene folder, or a folder of scene folders")
     _common(mb)
+    bag = sub.add_parser("rosbag2", help="a ROS 2 bag (MCAP storage): a rectified stereo pair's image topics")
+    bag.add_argument("bag", type=Path, help="the bag's .mcap file, or its rosbag2 folder")
+    bag.add_argument("--left", required=True, help="left rectified image topic (sensor_msgs Image or CompressedImage)")
+    bag.add_argument("--right", required=True, help="right rectified image topic")
+    bag.add_argument("--left-info", default=None, help="left CameraInfo topic (default: camera_info beside --left)")
+    bag.add_argument("--right-info", default=None, help="right CameraInfo topic (default: camera_info beside --right)")
+    bag.add_argument("--camera-height", type=float, required=True, metavar="M",
+                     help="the left camera's height above the road (m); the bag does not say")
+    bag.add_argument("--pitch-deg", type=float, default=0.0, help="the rig pitched down by this much (degrees)")
+    bag.add_argument("--sync-tolerance-ms", type=float, default=1.0, metavar="MS",
+                     help="left and right header stamps this close are one frame")
+    _common(bag)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -49,8 +61,14 @@ def run(args: argparse.Namespace) -> int:
         frames = kitti_tracking.import_sequence(args.training, args.sequence, args.out, args.max_frames)
     elif args.dataset == "kitti-odometry":
         frames = kitti_odometry.import_sequence(args.sequence, args.poses, args.out, args.max_frames)
-    else:
+    elif args.dataset == "middlebury":
         frames = middlebury.import_scenes(args.folder, args.out, args.max_frames)
+    else:
+        topics = rosbag2.Topics.of(args.left, args.right, args.left_info, args.right_info)
+        frames, unpaired = rosbag2.import_bag(args.bag, topics, args.out, args.camera_height, args.pitch_deg,
+                                             args.sync_tolerance_ms, args.max_frames)
+        if unpaired:
+            print(f"{unpaired} images had no partner within {args.sync_tolerance_ms} ms and were left out")
     print(f"wrote {args.out} ({args.out.stat().st_size / 1e6:.1f} MB, {frames} frames) "
           f"in {time.perf_counter() - start:.1f} s")
     return 0
