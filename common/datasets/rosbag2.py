@@ -73,7 +73,7 @@ def _reader(stream: Any) -> Any:
     return make_reader(stream, decoder_factories=[DecoderFactory()])
 
 
-def topics(files: list[Path]) -> dict[str, str]:
+def bag_topics(files: list[Path]) -> dict[str, str]:
     """Every topic of the bag with its message type."""
     out: dict[str, str] = {}
     for path in files:
@@ -218,16 +218,16 @@ def sibling_info(image_topic: str) -> str:
     return image_topic.rsplit("/", 1)[0] + "/camera_info" if "/" in image_topic.strip("/") else "/camera_info"
 
 
-def _frames(files: list[Path], topics_: Topics, pairs: list[tuple[int, int]], calib: Calibration
+def _frames(files: list[Path], names: Topics, pairs: list[tuple[int, int]], calib: Calibration
             ) -> Iterator[list[Message]]:
     """StereoFrames of the pairs in time order; only paired images are decoded, at most one pair ahead."""
     index_of = {stamp: i for i, (stamp, _) in enumerate(pairs)}
     right_of = {right: i for i, (_, right) in enumerate(pairs)}
     waiting: dict[int, dict[str, U8]] = {}
     next_index = 0
-    for topic, msg in _decoded(files, [topics_.left, topics_.right]):
+    for topic, msg in _decoded(files, [names.left, names.right]):
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        table = index_of if topic == topics_.left else right_of
+        table = index_of if topic == names.left else right_of
         i = table.get(stamp)
         if i is None or topic in waiting.get(i, {}):
             continue
@@ -238,38 +238,38 @@ def _frames(files: list[Path], topics_: Topics, pairs: list[tuple[int, int]], ca
         waiting.setdefault(i, {})[topic] = image
         while next_index in waiting and len(waiting[next_index]) == 2:
             pair = waiting.pop(next_index)
-            yield [StereoFrame(frame_id=next_index, stamp_ns=pairs[next_index][0], left=pair[topics_.left],
-                               right=pair[topics_.right], calib=calib, image_format=IMAGE_FORMAT)]
+            yield [StereoFrame(frame_id=next_index, stamp_ns=pairs[next_index][0], left=pair[names.left],
+                               right=pair[names.right], calib=calib, image_format=IMAGE_FORMAT)]
             next_index += 1
         if next_index == len(pairs):
             return
 
 
-def import_bag(bag: Path, topics_: Topics, out: Path, camera_height: float, pitch_deg: float = 0.0,
+def import_bag(bag: Path, names: Topics, out: Path, camera_height: float, pitch_deg: float = 0.0,
                tolerance_ms: float = 1.0, max_frames: int | None = None) -> tuple[int, int]:
     """Write the bag's stereo pairs to ``out``; returns (frames written, images left unpaired)."""
     if not camera_height > 0.0:
         raise InputError(f"--camera-height must be above 0 m, got {camera_height}")
     files = bag_files(bag)
-    available = topics(files)
-    _require(available, topics_.left, IMAGE_TYPES, "left image")
-    _require(available, topics_.right, IMAGE_TYPES, "right image")
-    _require(available, topics_.left_info, (INFO_TYPE,), "left camera_info")
-    _require(available, topics_.right_info, (INFO_TYPE,), "right camera_info")
-    calib = calibration(camera_info(files, topics_.left_info), camera_info(files, topics_.right_info),
+    available = bag_topics(files)
+    _require(available, names.left, IMAGE_TYPES, "left image")
+    _require(available, names.right, IMAGE_TYPES, "right image")
+    _require(available, names.left_info, (INFO_TYPE,), "left camera_info")
+    _require(available, names.right_info, (INFO_TYPE,), "right camera_info")
+    calib = calibration(camera_info(files, names.left_info), camera_info(files, names.right_info),
                         camera_height, pitch_deg)
-    stamps: dict[str, list[int]] = {topics_.left: [], topics_.right: []}
-    for topic, data in _raw_messages(files, [topics_.left, topics_.right]):
+    stamps: dict[str, list[int]] = {names.left: [], names.right: []}
+    for topic, data in _raw_messages(files, [names.left, names.right]):
         stamps[topic].append(header_stamp(data, topic))
-    pairs = pair_stamps(stamps[topics_.left], stamps[topics_.right], round(tolerance_ms * 1e6))
-    unpaired = len(stamps[topics_.left]) + len(stamps[topics_.right]) - 2 * len(pairs)
+    pairs = pair_stamps(stamps[names.left], stamps[names.right], round(tolerance_ms * 1e6))
+    unpaired = len(stamps[names.left]) + len(stamps[names.right]) - 2 * len(pairs)
     if not pairs:
-        raise InputError(f"{bag}: no {topics_.left} image has a {topics_.right} partner within {tolerance_ms} ms "
-                         f"({len(stamps[topics_.left])} left, {len(stamps[topics_.right])} right images)")
+        raise InputError(f"{bag}: no {names.left} image has a {names.right} partner within {tolerance_ms} ms "
+                         f"({len(stamps[names.left])} left, {len(stamps[names.right])} right images)")
     pairs = pairs[:max_frames]
     steps = np.diff([left for left, _ in pairs])
     rate = 1e9 / float(np.median(steps)) if len(steps) and np.median(steps) > 0 else 10.0
     info = recording_info("rosbag2", bag.stem, len(pairs), calib, volume=None, settings=None,
-                          frame_rate_hz=rate, topics={"left": topics_.left, "right": topics_.right})
-    written = write_frames(out, info, _frames(files, topics_, pairs, calib), f"import {bag.name}")
+                          frame_rate_hz=rate, topics={"left": names.left, "right": names.right})
+    written = write_frames(out, info, _frames(files, names, pairs, calib), f"import {bag.name}")
     return written, unpaired
