@@ -107,22 +107,18 @@ def header_stamp(data: bytes, topic: str) -> int:
     return sec * 1_000_000_000 + nanosec
 
 
-def _raw_messages(files: list[Path], wanted: list[str]) -> Iterator[tuple[str, bytes]]:
+def _messages(files: list[Path], wanted: list[str], decode: bool) -> Iterator[tuple[str, Any]]:
+    """(topic, message) in log-time order: the raw CDR bytes, or the decoded message with ``decode``."""
     for path in files:
         with open(path, "rb") as stream:
+            reader = _reader(stream)
             try:
-                for _schema, channel, message in _reader(stream).iter_messages(topics=wanted):
-                    yield channel.topic, message.data
-            except MCAP_ERRORS as exc:
-                raise InputError(f"{path}: unreadable MCAP data ({exc})") from None
-
-
-def _decoded(files: list[Path], wanted: list[str]) -> Iterator[tuple[str, Any]]:
-    for path in files:
-        with open(path, "rb") as stream:
-            try:
-                for _schema, channel, _message, decoded in _reader(stream).iter_decoded_messages(topics=wanted):
-                    yield channel.topic, decoded
+                if decode:
+                    for _schema, channel, _message, decoded in reader.iter_decoded_messages(topics=wanted):
+                        yield channel.topic, decoded
+                else:
+                    for _schema, channel, message in reader.iter_messages(topics=wanted):
+                        yield channel.topic, message.data
             except MCAP_ERRORS as exc:
                 raise InputError(f"{path}: unreadable MCAP data ({exc})") from None
 
@@ -155,7 +151,7 @@ class CameraInfo:
 
 def camera_info(files: list[Path], topic: str) -> CameraInfo:
     """The topic's first CameraInfo (a rig's intrinsics do not change within a bag)."""
-    for _topic, msg in _decoded(files, [topic]):
+    for _topic, msg in _messages(files, [topic], decode=True):
         p = np.asarray(msg.p, dtype=np.float64).reshape(3, 4)
         return CameraInfo(p, int(msg.width), int(msg.height))
     raise InputError(f"{topic}: no CameraInfo message in the bag")
@@ -225,7 +221,7 @@ def _frames(files: list[Path], names: Topics, pairs: list[tuple[int, int]], cali
     right_of = {right: i for i, (_, right) in enumerate(pairs)}
     waiting: dict[int, dict[str, U8]] = {}
     next_index = 0
-    for topic, msg in _decoded(files, [names.left, names.right]):
+    for topic, msg in _messages(files, [names.left, names.right], decode=True):
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         table = index_of if topic == names.left else right_of
         i = table.get(stamp)
@@ -259,7 +255,7 @@ def import_bag(bag: Path, names: Topics, out: Path, camera_height: float, pitch_
     calib = calibration(camera_info(files, names.left_info), camera_info(files, names.right_info),
                         camera_height, pitch_deg)
     stamps: dict[str, list[int]] = {names.left: [], names.right: []}
-    for topic, data in _raw_messages(files, [names.left, names.right]):
+    for topic, data in _messages(files, [names.left, names.right], decode=False):
         stamps[topic].append(header_stamp(data, topic))
     pairs = pair_stamps(stamps[names.left], stamps[names.right], round(tolerance_ms * 1e6))
     unpaired = len(stamps[names.left]) + len(stamps[names.right]) - 2 * len(pairs)
