@@ -81,6 +81,10 @@ class StereoConfig:
     below_volume_m: float = 1.0  # keep points this far below volume.z_min: the road for the mapper
     disparity_offset_px: float = 0.0  # a rig's disparity bias, added before depth (KITTI: as odometry's)
     disparity_edge_px: float = 0.0  # plus this times ((u - cx) / fx)^2, towards the image sides
+    subpixel_iterations: int = 3  # Lucas-Kanade steps re-estimating SGM's sub-pixel part; 0 = off
+    subpixel_window: int = 11  # their Gaussian window (px, odd)
+    subpixel_span_px: float = 1.5  # ... used only where the window's matched disparities span at most this
+    subpixel_max_step_px: float = 0.75  # a larger correction keeps the matcher's value
 
 
 @dataclass

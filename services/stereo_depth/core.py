@@ -61,7 +61,8 @@ class StereoDepth:
         return self._messages(frame, points, colors, disparity)
 
     def step_timings_ms(self) -> dict[str, float]:
-        """The last frame's milliseconds per step: sgbm_coarse, sgbm_fine, lr_check, fill, reproject, total."""
+        """The last frame's milliseconds per step: sgbm_coarse, sgbm_fine, lr_check, fill, subpixel, reproject,
+        total."""
         steps = dict(self._last_matcher.timings_ms) if self._last_matcher else {}
         steps["reproject"] = self.last_timings_ms.get("reproject", 0.0)
         steps["total"] = self.last_timings_ms.get("match", 0.0) + steps["reproject"]
