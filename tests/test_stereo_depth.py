@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 from conftest import shared_path
+from textures import blob_texture
 
 from common.config import Config, load_config
 from common.errors import CalibrationError, ConfigError, InputError
@@ -22,15 +23,6 @@ FX, CX, CY, BASELINE, CAMERA_HEIGHT = 300.0, 160.0, 120.0, 0.4, 1.5
 # the wall's disparity is 32.5 px: whole-pixel disparities would put it 1.5 % off its depth
 PLANE_DEPTH, BOX_DEPTH = FX * BASELINE / 32.5, 2.5  # 3.7 m and 2.5 m (48 px)
 BOX = (slice(80, 160), slice(150, 230))  # rows, left-image columns of the box's front face
-
-
-def _texture(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
-    """Blob texture with detail at several scales, like a real surface (not per-pixel noise)."""
-    out = np.zeros((height, width, 3), np.float32)
-    for cell, weight in ((2, 0.5), (6, 0.3), (16, 0.2)):
-        coarse = rng.uniform(0, 255, (height // cell + 2, width // cell + 2, 3)).astype(np.float32)
-        out += weight * cv2.resize(coarse, None, fx=cell, fy=cell, interpolation=cv2.INTER_LINEAR)[:height, :width]
-    return out.clip(0, 255).astype(np.uint8)
 
 
 def _calib(**changes: float) -> Calibration:
@@ -50,8 +42,8 @@ def _scene(seed: int = 0) -> StereoFrame:
     """
     rng = np.random.default_rng(seed)
     d_wall, d_box = FX * BASELINE / PLANE_DEPTH, round(FX * BASELINE / BOX_DEPTH)
-    wall = _texture(rng, HEIGHT, WIDTH + 32)  # indexed by left-image column
-    box = _texture(rng, HEIGHT, WIDTH + d_box)
+    wall = blob_texture(rng, HEIGHT, WIDTH + 32)  # indexed by left-image column
+    box = blob_texture(rng, HEIGHT, WIDTH + d_box)
     map_x = np.broadcast_to(np.arange(WIDTH, dtype=np.float32) + np.float32(d_wall), (HEIGHT, WIDTH))
     map_y = np.broadcast_to(np.arange(HEIGHT, dtype=np.float32)[:, None], (HEIGHT, WIDTH))
     right = cv2.remap(wall, np.ascontiguousarray(map_x), np.ascontiguousarray(map_y), cv2.INTER_LINEAR)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from textures import blob_texture
 
 from common.config import load_config
 from common.geometry import camera_to_vehicle
@@ -17,15 +18,6 @@ FX, BASELINE = 300.0, 0.4
 NEAR = (slice(90, 150), slice(150, 210))  # rows, left-image columns of a nearer square
 
 
-def _texture(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
-    """Blob texture with detail at several scales (per-pixel noise would be unlike any surface)."""
-    out = np.zeros((height, width, 3), np.float32)
-    for cell, weight in ((2, 0.5), (6, 0.3), (16, 0.2)):
-        coarse = rng.uniform(0, 255, (height // cell + 2, width // cell + 2, 3)).astype(np.float32)
-        out += weight * cv2.resize(coarse, None, fx=cell, fy=cell, interpolation=cv2.INTER_LINEAR)[:height, :width]
-    return out.clip(0, 255).astype(np.uint8)
-
-
 def _pair(d_wall: float, d_near: float | None = None, gain: float = 1.0, seed: int = 0) -> StereoFrame:
     """A textured wall at disparity ``d_wall`` (fractional), optionally a square at ``d_near`` before it.
 
@@ -33,13 +25,13 @@ def _pair(d_wall: float, d_near: float | None = None, gain: float = 1.0, seed: i
     brightens the right camera, as an exposure difference would.
     """
     rng = np.random.default_rng(seed)
-    wall = _texture(rng, HEIGHT, WIDTH + 64)
+    wall = blob_texture(rng, HEIGHT, WIDTH + 64)
     rows = np.arange(HEIGHT, dtype=np.float32)[:, None].repeat(WIDTH, 1)
     cols = np.arange(WIDTH, dtype=np.float32)[None, :].repeat(HEIGHT, 0)
     right = cv2.remap(wall, cols + np.float32(d_wall), rows, cv2.INTER_CUBIC)
     left = wall[:, :WIDTH].copy()
     if d_near is not None:
-        square = _texture(rng, HEIGHT, WIDTH + 64)
+        square = blob_texture(rng, HEIGHT, WIDTH + 64)
         r, c = NEAR
         left[r, c] = square[r, c]
         shifted = cv2.remap(square, cols + np.float32(d_near), rows, cv2.INTER_CUBIC)
