@@ -4,8 +4,8 @@ SGBM finds its sub-pixel part from a parabola through the aggregated Birchfield-
 which are flat near their minimum. Its estimates are therefore pulled towards whole pixels
 ("pixel locking"): on synthetic `urban` the error is -0.15 px at a true fraction of 0.25 and
 +0.14 px at 0.5, and its spread beyond 15 m is 0.13-0.16 px (median absolute deviation). At 20 m
-on the synthetic rig a tenth of a pixel is 0.17 m, and the voxels are 0.25 m: the smear along the
-line of sight splits walkers and strings points out behind poles (docs/results/stereo.md).
+on the synthetic rig a tenth of a pixel is 0.17 m, and the voxels are 0.25 m, so objects smear
+across voxels along the line of sight (docs/results/stereo.md).
 
 The refinement warps the right image by the current disparity and solves, in a Gaussian window,
 for the common shift that best explains what is left over, a few times. It is the same
