@@ -42,9 +42,9 @@ class SubpixelParams:
     highpass: int = 7  # box size of the local mean subtracted from both images
 
 
-def _highpassed(rgb: Image, size: int) -> np.ndarray:
-    img = rgb.astype(np.float32)
-    return img - cv2.blur(img, (size, size))
+def _highpassed(img: Image, size: int) -> np.ndarray:
+    values = img.astype(np.float32)
+    return values - cv2.blur(values, (size, size))
 
 
 def _x_gradient(img: np.ndarray) -> np.ndarray:
@@ -69,29 +69,30 @@ def refine_disparity(left: Image, right: Image, disparity: DisparityMap, params:
     if not valid.any():
         return disparity
     h, w = disparity.shape
-    lo = _highpassed(left, params.highpass)
-    ro = _highpassed(right, params.highpass)
-    grad_l, grad_r = _x_gradient(lo), _x_gradient(ro)
+    left_hp = _highpassed(left, params.highpass)
+    right_hp = _highpassed(right, params.highpass)
+    grad_l, grad_r = _x_gradient(left_hp), _x_gradient(right_hp)
     weight = valid.astype(np.float32)
     sigma = params.window / 3.7
     ksize = (params.window, params.window)
     cols = np.arange(w, dtype=np.float32)[None, :].repeat(h, 0)
     rows = np.arange(h, dtype=np.float32)[:, None].repeat(w, 1)
-    current = np.where(valid, disparity, 0.0).astype(np.float32)
+    matched = np.where(valid, disparity, 0.0).astype(np.float32)
+    current = matched.copy()
     for _ in range(params.iterations):
         map_x = cols - current
-        warped = cv2.remap(ro, map_x, rows, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
+        warped = cv2.remap(right_hp, map_x, rows, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
         warped_grad = cv2.remap(grad_r, map_x, rows, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
         grad = 0.5 * (warped_grad + grad_l)
         # left(x) = right(x - d - s) ~ warped - s * grad, so s = -sum(grad * residual) / sum(grad^2)
-        num = _channel_sum(grad * (lo - warped)) * weight
+        num = _channel_sum(grad * (left_hp - warped)) * weight
         den = _channel_sum(grad * grad) * weight
         num = cv2.GaussianBlur(num, ksize, sigma)
         den = cv2.GaussianBlur(den, ksize, sigma)
         textured = den > MIN_GRADIENT_SQ
         step = np.where(textured, -num / np.maximum(den, 1e-6), 0.0)
         current += np.clip(step, -MAX_ITERATION_STEP_PX, MAX_ITERATION_STEP_PX).astype(np.float32)
-    keep_matcher = np.abs(current - np.where(valid, disparity, 0.0)) > params.max_step_px
+    keep_matcher = np.abs(current - matched) > params.max_step_px
     keep_matcher |= _window_span(disparity, valid, params.window) > params.span_px
     out = np.where(keep_matcher, disparity, current).astype(np.float32)
     out[~valid] = np.nan
