@@ -95,3 +95,26 @@ def test_invalid_pixels_stay_invalid_and_a_field_with_none_valid_is_returned_as_
     assert np.nanmedian(np.abs(out[INNER] - 12.3)) < 0.05  # from a whole-pixel start as well
     empty = np.full((HEIGHT, WIDTH), np.nan, np.float32)
     assert refine_disparity(*grey, empty, SubpixelParams()) is empty
+
+
+def test_near_pixels_keep_the_matchers_value() -> None:
+    """Nearer than ``max_disparity_px`` a refinable start stays as the matcher gave it."""
+    frame = _pair(36.3)
+    grey = [cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) for img in (frame.left, frame.right)]
+    start = np.full((HEIGHT, WIDTH), 36.0, np.float32)
+    refined = refine_disparity(*grey, start, SubpixelParams(max_disparity_px=1e9))
+    assert np.median(np.abs(refined[30:210, 60:300] - 36.3)) < 0.05  # it would be refined
+    np.testing.assert_array_equal(refine_disparity(*grey, start, SubpixelParams(max_disparity_px=32.0)), start)
+
+
+def test_the_far_band_is_refined_as_in_a_whole_frame() -> None:
+    """Only rows holding a far pixel are worked on; what is refined there does not change by it."""
+    frame = _pair(12.3)
+    grey = [cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) for img in (frame.left, frame.right)]
+    disparity = np.full((HEIGHT, WIDTH), 12.0, np.float32)
+    disparity[120:] = 40.0  # a near surface below
+    banded = refine_disparity(*grey, disparity, SubpixelParams(max_disparity_px=32.0))
+    whole = refine_disparity(*grey, disparity, SubpixelParams(max_disparity_px=1e9))
+    np.testing.assert_array_equal(banded[120:], disparity[120:])
+    assert np.median(np.abs(banded[30:100, 60:300] - 12.3)) < 0.05
+    np.testing.assert_allclose(banded[:114], whole[:114], atol=1e-3)  # to the last row the span guard leaves

@@ -94,7 +94,11 @@ class MultiResolutionMatcher:
         subpixel = None
         if cfg.subpixel_iterations > 0:
             subpixel = SubpixelParams(
-                cfg.subpixel_window, cfg.subpixel_iterations, cfg.subpixel_span_px, cfg.subpixel_max_step_px
+                window=cfg.subpixel_window,
+                iterations=cfg.subpixel_iterations,
+                span_px=cfg.subpixel_span_px,
+                max_step_px=cfg.subpixel_max_step_px,
+                max_disparity_px=cfg.subpixel_max_disparity_px,
             )
         return cls(
             fine, coarse, cfg.lr_check, cfg.lr_max_diff_px, cfg.fill_support_px, cfg.color_matching, hidden,

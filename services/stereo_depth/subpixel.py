@@ -13,7 +13,10 @@ estimate the odometry makes for its features, done for every pixel at once with 
 OpenCV calls. Both images are high-passed first, so a difference of exposure between the
 cameras is not read as a shift. Where the window holds more than one surface (its matched
 disparities span more than ``span_px``) or the shift comes out larger than ``max_step_px``, the
-matcher's value stays: a window across a depth edge would drag the nearer surface back.
+matcher's value stays: a window across a depth edge would drag the nearer surface back. Nor is it
+done above ``max_disparity_px``, where the matcher's error is a negligible share of the depth;
+the work is then confined to the band of rows that holds something to refine, which leaves out
+the near road at the bottom of the image (a third of a 640x480 frame).
 """
 
 from __future__ import annotations
@@ -41,6 +44,7 @@ class SubpixelParams:
     span_px: float = 1.5  # the matched disparities in the window may span this much
     max_step_px: float = 0.75  # a larger total correction keeps the matcher's value
     highpass: int = 7  # box size of the local mean subtracted from both images
+    max_disparity_px: float = 32.0  # nearer than this the matcher's value stays
 
 
 def _highpassed(img: Image, size: int) -> np.ndarray:
@@ -72,18 +76,42 @@ def _window_span(disparity: DisparityMap, valid: np.ndarray, window: int) -> np.
 def refine_disparity(left: Image, right: Image, disparity: DisparityMap, params: SubpixelParams) -> DisparityMap:
     """``disparity`` with its sub-pixel part re-estimated from the images; NaN stays NaN."""
     valid = np.isfinite(disparity)
-    if not valid.any():
+    refinable = valid & (_window_span(disparity, valid, params.window) <= params.span_px)
+    refinable &= np.where(valid, disparity, np.inf) <= params.max_disparity_px
+    rows_in_use = np.flatnonzero(refinable.any(axis=1))
+    if len(rows_in_use) == 0:
         return disparity
-    h, w = disparity.shape
+    # how far a pixel's estimate reaches: each iteration's window takes in its neighbours' last
+    # estimates, on top of the high-pass and the gradient. Cropped any closer, the band's edge shows.
+    reach = params.iterations * (params.window // 2) + params.highpass // 2 + 2
+    band = slice(max(0, int(rows_in_use[0]) - reach), min(disparity.shape[0], int(rows_in_use[-1]) + 1 + reach))
+    cols, rows = _pixel_grid(*disparity.shape)
+    height = band.stop - band.start
+    grid = (cols[:height], rows[:height])  # the band's own rows start at 0
+    refined = _refine_band(left[band], right[band], disparity[band], valid[band], grid, params)
+    out = disparity.copy()
+    take = refinable[band] & (np.abs(refined - np.where(valid[band], disparity[band], 0.0)) <= params.max_step_px)
+    out[band] = np.where(take, refined, disparity[band])
+    return out
+
+
+def _refine_band(
+    left: Image,
+    right: Image,
+    disparity: DisparityMap,
+    valid: np.ndarray,
+    grid: tuple[np.ndarray, np.ndarray],
+    params: SubpixelParams,
+) -> np.ndarray:
+    """Lucas-Kanade estimates for every pixel of a band of rows (where invalid: meaningless)."""
     left_hp = _highpassed(left, params.highpass)
     right_hp = _highpassed(right, params.highpass)
     grad_l = _x_gradient(left_hp)
     weight = valid.astype(np.float32)
     sigma = params.window / 3.7
     ksize = (params.window, params.window)
-    cols, rows = _pixel_grid(h, w)
-    matched = np.where(valid, disparity, 0.0).astype(np.float32)
-    current = matched.copy()
+    cols, rows = grid
+    current = np.where(valid, disparity, 0.0).astype(np.float32)
     # the left image's gradient stands for the warped right one's (inverse compositional): the
     # normal equations' left side is then fixed and each iteration needs one warp, not two. On
     # synthetic `urban` seed 7 the spread per range moved by at most 0.002 px against the mean of
@@ -97,8 +125,4 @@ def refine_disparity(left: Image, right: Image, disparity: DisparityMap, params:
         # left(x) = right(x - d - s) ~ warped - s * grad, so s = -sum(grad * residual) / sum(grad^2)
         num = cv2.GaussianBlur(grad_w * (left_hp - warped), ksize, sigma)
         current += np.clip(num * inv_den, -MAX_ITERATION_STEP_PX, MAX_ITERATION_STEP_PX)
-    keep_matcher = np.abs(current - matched) > params.max_step_px
-    keep_matcher |= _window_span(disparity, valid, params.window) > params.span_px
-    out = np.where(keep_matcher, disparity, current).astype(np.float32)
-    out[~valid] = np.nan
-    return out
+    return current
