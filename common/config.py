@@ -85,7 +85,7 @@ class StereoConfig:
     subpixel_window: int = 11  # their Gaussian window (px, odd)
     subpixel_span_px: float = 1.5  # ... used only where the window's matched disparities span at most this
     subpixel_max_step_px: float = 0.75  # a larger correction keeps the matcher's value
-    subpixel_max_disparity_px: float = 32.0  # ... and so does any nearer pixel (0.15 px is < 0.5 % of depth there)
+    subpixel_max_disparity_px: float = 32.0  # ... and so does any pixel over this (0.15 px is < 0.5 % of its depth)
 
 
 @dataclass

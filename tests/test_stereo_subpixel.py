@@ -98,7 +98,7 @@ def test_invalid_pixels_stay_invalid_and_a_field_with_none_valid_is_returned_as_
 
 
 def test_near_pixels_keep_the_matchers_value() -> None:
-    """Nearer than ``max_disparity_px`` a refinable start stays as the matcher gave it."""
+    """Over ``max_disparity_px`` (near the car) a refinable start stays as the matcher gave it."""
     frame = _pair(36.3)
     grey = [cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) for img in (frame.left, frame.right)]
     start = np.full((HEIGHT, WIDTH), 36.0, np.float32)

@@ -16,7 +16,7 @@ disparities span more than ``span_px``) or the shift comes out larger than ``max
 matcher's value stays: a window across a depth edge would drag the nearer surface back. Nor is it
 done above ``max_disparity_px``, where the matcher's error is a negligible share of the depth;
 the work is then confined to the band of rows that holds something to refine, which leaves out
-the near road at the bottom of the image (a third of a 640x480 frame).
+the near road at the bottom of the image (a quarter to a third of a 640x480 frame).
 """
 
 from __future__ import annotations
