@@ -60,6 +60,26 @@ def test_known_point_appears_at_predicted_pixel_and_disparity() -> None:
     assert band[225] == pytest.approx(21.333, abs=0.01)
 
 
+def test_a_pixel_an_edge_crosses_is_the_mean_over_its_area() -> None:
+    """Row 200's pixel 229 spans u 228.5-229.5 and the box starts at u = 229.2 against the sky.
+
+    Of its 3 x 3 rays (u = 228.67, 229, 229.33) one column meets the box, so the pixel is a third
+    box; one ray per pixel (at u = 229) makes it all sky. The truth is the centre rays' either way.
+    """
+    world = _one_box_world()
+    point = Renderer(world, Rig(samples=1)).render(0.0, np.random.default_rng(0))
+    area = Renderer(world, Rig(samples=3)).render(0.0, np.random.default_rng(0))
+    for out, box_share in ((point, 0.0), (area, 1.0 / 3.0)):
+        sky, pixel, box = (float(out.left[200, u, 1]) for u in (228, 229, 230))  # green: sky 210, box ~50
+        assert (sky - pixel) / (sky - box) == pytest.approx(box_share, abs=0.05)
+    assert np.array_equal(point.disparity, area.disparity, equal_nan=True)
+    assert np.array_equal(point.object_ids, area.object_ids)
+    interior = (slice(160, 230), slice(235, 285))  # the box's face, well inside its edges
+    assert np.array_equal(point.left[interior], area.left[interior])
+    with pytest.raises(ConfigError, match="odd"):
+        Renderer(world, Rig(samples=2))
+
+
 def test_visible_fraction_counts_the_part_outside_the_image() -> None:
     """A box cut by the left border: its share visible equals what a wider camera sees of it."""
     world = _one_box_world(left=5.333)  # front face from u = -30 to 30, side face to u = 56

@@ -128,15 +128,41 @@ def _slab(o: F64, dl: F64, half: F64) -> tuple[float, int]:  # pragma: no cover 
 
 
 @njit(cache=True, nogil=True)
+def _into_box(o, rot, origin, center):  # pragma: no cover - compiled
+    """The ray origin in the box's own frame, into ``o``."""
+    for k in range(3):
+        o[k] = rot[0, k] * (origin[0] - center[0]) + rot[1, k] * (origin[1] - center[1]) \
+            + rot[2, k] * (origin[2] - center[2])
+
+
+@njit(cache=True, nogil=True)
+def _record_hit(i, b, o, dl, t, axis, surfaces, objs, lights, fx,
+                depth, surface, obj, u, v, footprint, light, paint):  # pragma: no cover - compiled
+    """Write box ``b``'s hit at ray parameter ``t`` (entry face ``axis``) into ray ``i`` of the buffers."""
+    p0, p1, p2 = o[0] + t * dl[0], o[1] + t * dl[1], o[2] + t * dl[2]
+    if axis == 0:
+        u[i], v[i] = p1, p2
+    elif axis == 1:
+        u[i], v[i] = p0 + 3.1, p2
+    else:
+        u[i], v[i] = p0 + 6.2, p1
+    cos = abs(dl[axis]) / np.sqrt(dl[0] ** 2 + dl[1] ** 2 + dl[2] ** 2)
+    depth[i] = t
+    surface[i] = surfaces[b]
+    obj[i] = objs[b]
+    footprint[i] = t / fx / np.sqrt(max(cos, 0.05))
+    light[i] = lights[b, axis * 2 + (1 if dl[axis] < 0 else 0)]
+    paint[i] = 0.0
+
+
+@njit(cache=True, nogil=True)
 def _cast_boxes(dirs, width, origin, centers, rots, halves, rects, surfaces, objs, lights, fx,
                 depth, surface, obj, u, v, footprint, light, paint):  # pragma: no cover - compiled
     o = np.empty(3)
     dl = np.empty(3)
     for b in range(len(centers)):
         rot = rots[b]
-        for k in range(3):
-            o[k] = rot[0, k] * (origin[0] - centers[b, 0]) + rot[1, k] * (origin[1] - centers[b, 1]) \
-                + rot[2, k] * (origin[2] - centers[b, 2])
+        _into_box(o, rot, origin, centers[b])
         x0, x1, y0, y1 = rects[b]
         for y in range(y0, y1):
             for x in range(x0, x1):
@@ -146,20 +172,8 @@ def _cast_boxes(dirs, width, origin, centers, rots, halves, rects, surfaces, obj
                 t, axis = _slab(o, dl, halves[b])
                 if axis < 0 or t >= depth[i]:
                     continue
-                p0, p1, p2 = o[0] + t * dl[0], o[1] + t * dl[1], o[2] + t * dl[2]
-                if axis == 0:
-                    u[i], v[i] = p1, p2
-                elif axis == 1:
-                    u[i], v[i] = p0 + 3.1, p2
-                else:
-                    u[i], v[i] = p0 + 6.2, p1
-                cos = abs(dl[axis]) / np.sqrt(dl[0] ** 2 + dl[1] ** 2 + dl[2] ** 2)
-                depth[i] = t
-                surface[i] = surfaces[b]
-                obj[i] = objs[b]
-                footprint[i] = t / fx / np.sqrt(max(cos, 0.05))
-                light[i] = lights[b, axis * 2 + (1 if dl[axis] < 0 else 0)]
-                paint[i] = 0.0
+                _record_hit(i, b, o, dl, t, axis, surfaces, objs, lights, fx, depth, surface, obj, u, v, footprint,
+                            light, paint)
 
 
 def cast_boxes(buf: Buffers, boxes: Packed, rects: npt.NDArray[np.int64], origin: F64, dirs: F32,
@@ -168,6 +182,38 @@ def cast_boxes(buf: Buffers, boxes: Packed, rects: npt.NDArray[np.int64], origin
     _cast_boxes(dirs, width, origin.astype(np.float64), boxes.centers, boxes.rotations, boxes.halves, rects,
                 boxes.surfaces, boxes.objs, boxes.lights, fx, buf.depth, buf.surface, buf.obj, buf.u, buf.v,
                 buf.footprint, buf.light, buf.paint)
+
+
+@njit(cache=True, nogil=True)
+def _cast_boxes_at(dirs, xs, ys, origin, centers, rots, halves, rects, surfaces, objs, lights, fx,
+                   depth, surface, obj, u, v, footprint, light, paint):  # pragma: no cover - compiled
+    o = np.empty(3)
+    dl = np.empty(3)
+    for b in range(len(centers)):
+        x0, x1, y0, y1 = rects[b]
+        first, stop = np.searchsorted(ys, y0), np.searchsorted(ys, y1)
+        if first >= stop:
+            continue
+        rot = rots[b]
+        _into_box(o, rot, origin, centers[b])
+        for i in range(first, stop):
+            if xs[i] < x0 or xs[i] >= x1:
+                continue
+            for k in range(3):
+                dl[k] = rot[0, k] * dirs[i, 0] + rot[1, k] * dirs[i, 1] + rot[2, k] * dirs[i, 2]
+            t, axis = _slab(o, dl, halves[b])
+            if axis < 0 or t >= depth[i]:
+                continue
+            _record_hit(i, b, o, dl, t, axis, surfaces, objs, lights, fx, depth, surface, obj, u, v, footprint, light,
+                        paint)
+
+
+def cast_boxes_at(buf: Buffers, boxes: Packed, rects: npt.NDArray[np.int64], origin: F64, dirs: F32,
+                  xs: npt.NDArray[np.int64], ys: npt.NDArray[np.int64], fx: float) -> None:
+    """As :func:`cast_boxes` for a list of rays, each inside pixel (``xs``, ``ys``); ``ys`` ascending."""
+    _cast_boxes_at(dirs, xs, ys, origin.astype(np.float64), boxes.centers, boxes.rotations, boxes.halves, rects,
+                   boxes.surfaces, boxes.objs, boxes.lights, fx, buf.depth, buf.surface, buf.obj, buf.u, buf.v,
+                   buf.footprint, buf.light, buf.paint)
 
 
 @njit(cache=True, nogil=True)
