@@ -41,6 +41,8 @@ class FrameParts:
     camera: sv.StereoFrame | None = None
     clusters: sv.Clusters | None = None
     truth: sv.GroundTruthObjects | None = None
+    obstacles: sv.Obstacles | None = None
+    trajectory: np.ndarray | None = None  # the vehicle's path up to this frame (world positions)
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -133,11 +135,23 @@ def render_recording(run: Path, out: Path, frames: tuple[int, int] = (0, sys.max
     records = progress(
         reader.raw(keys), total, f"render {run.name}", counts=lambda r: r.key.endswith("tracker/obstacles")
     )
+
+    def write_ready(before: int) -> None:
+        """Draw every frame older than ``before`` that has its image and obstacles; forget the rest."""
+        for fid in sorted(f for f in pending if f < before):
+            parts = pending.pop(fid)
+            if parts.camera is not None and parts.obstacles is not None and parts.trajectory is not None:
+                renderer.write(parts, parts.obstacles, parts.trajectory)
+
     try:
         for rec in records:
             topic = keys.get(rec.key)
             stamp = peek_stamp(rec.data)
-            if topic is None or stamp is None or (topic != "tracker/obstacles" and not first <= stamp[0] < stop):
+            if topic is None or stamp is None:
+                continue
+            if topic == "tracker/obstacles" and stamp[0] >= stop:
+                break  # tracker output comes in frame order: nothing later is wanted
+            if topic != "tracker/obstacles" and not first <= stamp[0] < stop:
                 continue
             msg = sv.decode(rec.data)
             if isinstance(msg, sv.Obstacles):
@@ -147,16 +161,15 @@ def render_recording(run: Path, out: Path, frames: tuple[int, int] = (0, sys.max
                 if msg.frame_id != last_pose_frame:  # the path the vehicle took, every frame counted
                     last_pose_frame = msg.frame_id
                     positions.append(np.asarray(msg.ego_pose)[:3, 3].copy())
-                parts = pending.pop(msg.frame_id, None)
-                if parts is not None and parts.camera is not None:
-                    renderer.write(parts, msg, np.array(positions))
-                for old in [f for f in pending if f < msg.frame_id]:
-                    del pending[old]
-                if msg.frame_id >= stop - 1:
-                    break  # tracker output comes in frame order: nothing later is wanted
-                continue
+                # a frame's truth may follow its obstacles (``process`` writes it after the
+                # stages' outputs), so a frame is drawn once the next frame's obstacles are in
+                write_ready(msg.frame_id)
+                if not first <= msg.frame_id < stop:
+                    continue
             parts = pending.setdefault(msg.frame_id, FrameParts())
-            if isinstance(msg, sv.StereoFrame):
+            if isinstance(msg, sv.Obstacles):
+                parts.obstacles, parts.trajectory = msg, np.array(positions)
+            elif isinstance(msg, sv.StereoFrame):
                 parts.camera = msg
             elif isinstance(msg, sv.Clusters):
                 parts.clusters = msg
@@ -164,6 +177,7 @@ def render_recording(run: Path, out: Path, frames: tuple[int, int] = (0, sys.max
                 parts.truth = msg
             while len(pending) > MAX_PENDING:
                 del pending[min(pending)]
+        write_ready(sys.maxsize)
     finally:
         renderer.close()
     if reader.truncated is not None:

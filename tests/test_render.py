@@ -13,6 +13,7 @@ from tiny_run import CALIB, GREY, HEIGHT, MOVING, STATIONARY, WIDTH, ego_pose, w
 
 from common import messages as sv
 from common.errors import InputError
+from common.overlay import TRUTH
 from common.recording import RecordingWriter
 from services.render import parse_range, render_recording
 
@@ -85,6 +86,25 @@ def test_birds_eye_panel_shows_the_track_footprint_in_the_vehicle_frame(rendered
     u = WIDTH + round(HEIGHT / 2 - near_edge_mid[1] * scale)
     v = round(HEIGHT - (near_edge_mid[0] + 5.0) * scale)
     assert is_red(colour_near(rgb, (u, v))), colour_near(rgb, (u, v))
+
+
+@pytest.mark.timeout(60)
+def test_the_truth_written_after_a_frames_obstacles_is_drawn_too(tmp_path: Path) -> None:
+    """``process`` writes a frame's ground truth after the stages' outputs: the last frame's too."""
+    lone = sv.GroundTruthObject(id=2, cls="pole", center=np.array([20.0, -6.0, 2.0]), size=np.array([2.0, 2.0, 4.0]),
+                                yaw=0.0, velocity=np.zeros(3), moving=False)
+    run = write_run(tmp_path / "run.mcap", frames=3, extra_truth=(lone,))
+    renderer = render_recording(run, tmp_path / "out", parse_range("1:3"))
+    assert [p.name for p in renderer.written] == ["frame_000001.png", "frame_000002.png"]
+    for frame in (1, 2):
+        rgb = cv2.cvtColor(cv2.imread(str(tmp_path / "out" / f"frame_{frame:06d}.png")), cv2.COLOR_BGR2RGB)
+        pose = ego_pose(frame)
+        scale = HEIGHT / 45.0
+        for corner in ([19.0, -7.0], [21.0, -5.0]):  # opposite corners of the lone object's outline
+            x, y, _ = pose[:3, :3].T @ (np.array([*corner, 0.0]) - pose[:3, 3])
+            u, v = WIDTH + round(HEIGHT / 2 - y * scale), round(HEIGHT - (x + 5.0) * scale)
+            patch = rgb[v - 1 : v + 2, u - 1 : u + 2].reshape(-1, 3).astype(int)
+            assert (np.abs(patch - TRUTH).max(axis=1) <= 40).any(), f"frame {frame}: no truth outline at {(u, v)}"
 
 
 @pytest.mark.timeout(150)

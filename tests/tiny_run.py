@@ -58,8 +58,11 @@ def cluster(ob: sv.Obstacle) -> sv.Cluster:
     )
 
 
-def write_run(path: Path, frames: int = 3) -> Path:
-    """A run recording as ``process`` writes one: camera, points, ego, clusters, tracks, truth."""
+def write_run(path: Path, frames: int = 3, extra_truth: tuple[sv.GroundTruthObject, ...] = ()) -> Path:
+    """A run recording as ``process`` writes one: camera, points, ego, clusters, tracks, truth.
+
+    The truth is one car where the moving track is, plus ``extra_truth``.
+    """
     image = np.full((HEIGHT, WIDTH, 3), GREY, dtype=np.uint8)
     rng = np.random.default_rng(0)
     disparity = np.tile(np.linspace(1.0, 40.0, WIDTH, dtype=np.float32), (HEIGHT, 1))
@@ -83,7 +86,8 @@ def write_run(path: Path, frames: int = 3) -> Path:
                                                       clusters=[cluster(MOVING), cluster(STATIONARY)])),
                 ("tracker/obstacles", sv.Obstacles(frame_id=i, stamp_ns=stamp, obstacles=[MOVING, STATIONARY],
                                                    ego_pose=pose)),
-                ("groundtruth/objects", sv.GroundTruthObjects(frame_id=i, stamp_ns=stamp, objects=[truth])),
+                ("groundtruth/objects", sv.GroundTruthObjects(frame_id=i, stamp_ns=stamp,
+                                                              objects=[truth, *extra_truth])),
             ):
                 writer.write(sv.key_for(topic), msg)
     return path
