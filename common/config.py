@@ -165,7 +165,9 @@ class TrackerConfig:
     logistic fit of same-object vs other-object (track, cluster) pairs within 3 m (AUC 0.90 with
     these, 0.91 fitted: colour 1, size 4.6, density 0); the fitted weights scored no better in
     the replay, so the earlier ones stay. Every other field here moved the figures by less than
-    the difference between two seeds when varied by a factor of 1.5-2 either way.
+    the difference between two seeds when varied by a factor of 1.5-2 either way. Later, on the
+    area-sampled renders (40 frames): merging only pieces whose boxes touch (``fragment_gap``)
+    freed walkers held inside a blob's old box (services/tracker/fragments.py).
     """
 
     w_position: float = 1.0
@@ -192,6 +194,7 @@ class TrackerConfig:
     frame_period_s: float = 0.1  # time step when stamps cannot give one
     jump_nis: float = 7.8  # innovation (squared Mahalanobis, 3 dof; 7.8 = chi2 95 %) that re-anchors, not corrects
     fragment_margin: float = 0.25  # clusters in a known track's predicted box grown by this (m) merge; < 0: off
+    fragment_gap: float = 0.1  # ... only pieces whose boxes touch (chained by gaps up to this, m); < 0: any
     reshape_m: float = 3.0  # box grown or shrunk by more (m, x or y): a not-yet-moving track's speed window restarts
 
 

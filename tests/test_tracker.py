@@ -15,6 +15,7 @@ from common.messages import Cluster, Clusters, EgoMotion, Obstacles, decode, enc
 from services.tracker import Tracker, kalman
 from services.tracker.anchor import anchors
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
+from services.tracker.fragments import chained
 
 EDGE = 0.25
 PERIOD_NS = 100_000_000
@@ -431,6 +432,27 @@ def test_pieces_of_a_known_object_stay_one_track() -> None:
         assert [o.id for o in out.obstacles] == [car.id], k
         assert not out.obstacles[0].moving
     assert tracker.counters["tracks_born"] == 1
+
+
+def test_only_pieces_chained_by_narrow_gaps_are_gathered() -> None:
+    boxes = np.array([[0.0, 0.0, 0.0], [1.05, 0.0, 0.0], [2.0, 0.0, 0.0], [3.2, 0.0, 0.0]])
+    parts = chained(boxes, boxes + 1.0, 0.1)  # gaps 0.05, overlapping, 0.2 m
+    assert [p.tolist() for p in parts] == [[0, 1, 2], [3]]
+
+
+@pytest.mark.parametrize("gap", [0.1, -1.0])
+def test_walkers_who_part_from_one_blob_get_a_track_each(gap: float) -> None:
+    # two walkers side by side are one cluster while stereo smear joins them, then 1 m of air parts
+    # them; every piece in the blob's old box used to be gathered back into it, for ever
+    tracker = new_tracker(fragment_gap=gap)
+    for k in range(6):
+        out = step(tracker, k, [surface((15.0, -1.5, 0.0), (15.5, 0.5, 1.75))])
+    for k in range(6, 16):
+        left = surface((15.0, -1.5, 0.0), (15.5, -1.0, 1.75), 0)
+        right = surface((15.0, 0.0, 0.0), (15.5, 0.5, 1.75), 1, (0.2, 0.5, 0.2))
+        out = step(tracker, k, [left, right])
+    tracked = [o for o in out.obstacles if o.state == "tracked"]
+    assert len(tracked) == (2 if gap >= 0.0 else 1)
 
 
 def test_a_cluster_that_changes_shape_does_not_give_a_static_object_speed() -> None:

@@ -89,6 +89,7 @@ class Tracker:
         frame_period_s: float,
         jump_nis: float = float("inf"),
         fragment_margin: float = -1.0,
+        fragment_gap: float = -1.0,
         accept_misses: int = 0,
         reshape_m: float = float("inf"),
     ) -> None:
@@ -106,6 +107,7 @@ class Tracker:
         self.frame_period_s = frame_period_s
         self.jump_nis = jump_nis
         self.fragment_margin = fragment_margin
+        self.fragment_gap = fragment_gap
         self.accept_misses = accept_misses
         self.reshape_m = reshape_m
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
@@ -135,6 +137,7 @@ class Tracker:
             frame_period_s=t.frame_period_s,
             jump_nis=t.jump_nis,
             fragment_margin=t.fragment_margin,
+            fragment_gap=t.fragment_gap,
             accept_misses=t.accept_misses,
             reshape_m=t.reshape_m,
         )
@@ -211,7 +214,7 @@ class Tracker:
             return clusters.clusters
         shift = (t.x[known, 0:3] + t.offset[known]) - t.centroid[known]
         lo, hi = t.bbox_min[known] + shift, t.bbox_max[known] + shift
-        return gather(clusters.clusters, lo, hi, self.fragment_margin, clusters.voxel_edge)
+        return gather(clusters.clusters, lo, hi, self.fragment_margin, clusters.voxel_edge, self.fragment_gap)
 
     def _observe(self, clusters: list[Cluster], pose: NDArray, edge: float) -> Observations:
         obs, dropped = observe(clusters, pose, edge)
