@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from scipy.sparse.csgraph import connected_components
 
 from common.messages import Cluster
 
@@ -72,16 +73,10 @@ def merge(pieces: list[Cluster], edge: float) -> Cluster:
 
 def chained(box_min: NDArray, box_max: NDArray, gap: float) -> list[NDArray]:
     """Groups of boxes joined by chains of gaps no wider than ``gap`` (single linkage), as index arrays."""
-    n = len(box_min)
     between = np.maximum(box_min[:, None, :] - box_max[None, :, :], box_min[None, :, :] - box_max[:, None, :])
     near = np.max(np.maximum(between, 0.0), axis=2) <= gap
-    group = np.arange(n)
-    for _ in range(n):  # min-label propagation: n rounds reach every chain's end
-        new = np.min(np.where(near, group[None, :], n), axis=1)
-        if np.array_equal(new, group):
-            break
-        group = new
-    return [np.flatnonzero(group == g) for g in np.unique(group)]
+    n_groups, group = connected_components(near, directed=False)
+    return [np.flatnonzero(group == g) for g in range(n_groups)]
 
 
 def gather(
