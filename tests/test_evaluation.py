@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 
@@ -17,8 +18,9 @@ import pytest
 from conftest import REPO, stereovox_cmd
 
 from common.config import VolumeConfig
-from common.evaluation.evaluate import KEYS, evaluate_recording, stitched_poses
-from common.evaluation.inputs import ClusterBox, FrameClusters
+from common.evaluation.breakdown import breakdown
+from common.evaluation.evaluate import KEYS, evaluate_recording, matched_frames, stitched_poses
+from common.evaluation.inputs import ClusterBox, FrameClusters, read_inputs
 from common.evaluation.matching import DetectionView, TruthView, match, truth_in_vehicle
 from common.evaluation.segmentation import segmentation_figures
 from common.evaluation.velocity import fit_velocities
@@ -367,13 +369,38 @@ def test_recording_without_ground_truth_evaluates_to_nulls(tmp_path: Path) -> No
 def test_json_last_line_has_every_key_and_plots_are_written(tmp_path: Path) -> None:
     path = write_run(tmp_path / "run.mcap")
     plots = tmp_path / "plots"
-    cmd = stereovox_cmd("evaluate", str(path), "--json", "--plots", str(plots))
+    cmd = stereovox_cmd("evaluate", str(path), "--json", "--plots", str(plots), "--why")
     out = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout.strip().splitlines()[-1])
     assert list(result) == list(KEYS)
     assert result["moving"]["tp"] == 10
+    # the breakdown goes beside the JSON, never into stdout's last line
+    assert "moving truth-frames by outcome and clusters (10 scored)" in out.stderr
     assert sorted(p.name for p in plots.iterdir()) == ["latency.png", "speed_error.png", "trajectory.png"]
+
+
+def test_why_puts_every_scored_truth_frame_in_one_row(tmp_path: Path) -> None:
+    """Car A is never tracked, parked car B is called moving: each in its row, adding up to the figures."""
+
+    def miss_a_move_b(k: int, obj: GroundTruthObject) -> Obstacle | None:
+        if obj.id == 1:
+            return None
+        return obstacle(obj.id, obj.center, np.array([2.0, 0.0, 0.0]), moving=True)
+
+    path = write_run(tmp_path / "run.mcap", detect=miss_a_move_b)
+    run = read_inputs(path)
+    rows = breakdown(run, matched_frames(run))
+    assert rows.moving == Counter({("car", "no track", "one"): 10})
+    assert rows.stationary == Counter({("car", "wrong label", "one"): 10})
+    figures = evaluate_recording(path)
+    assert rows.total("moving") == figures["moving"]["tp"] + figures["moving"]["fn"]
+    assert rows.total("moving", "found") == figures["moving"]["tp"] == 0
+
+    perfect_run = read_inputs(write_run(tmp_path / "perfect.mcap"))
+    found = breakdown(perfect_run, matched_frames(perfect_run))
+    assert found.moving == Counter({("car", "found", "one"): 10})
+    assert found.stationary == Counter({("car", "found", "one"): 10})
 
 
 @pytest.mark.parametrize("damage", ["truncated", "not_mcap"])

@@ -213,12 +213,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--partial", action="store_true", help="score what a damaged recording holds instead of refusing it"
     )
+    parser.add_argument(
+        "--why",
+        action="store_true",
+        help="also print every scored truth-frame by outcome and clusters (to stderr with --json)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     from common.evaluation.report import format_table
 
-    ev = evaluate_run(read_inputs(args.recording, allow_truncated=args.partial))
+    run_inputs = read_inputs(args.recording, allow_truncated=args.partial)
+    ev = evaluate_run(run_inputs)
     if args.plots is not None:
         from common.evaluation.plots import write_plots
 
@@ -230,4 +236,9 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(ev.result))
     else:
         print(format_table(ev.result, ev.notes))
+    if args.why:
+        from common.evaluation.breakdown import breakdown, format_breakdown
+
+        table = format_breakdown(breakdown(run_inputs, matched_frames(run_inputs)))
+        print(table, file=sys.stderr if args.json else sys.stdout)
     return 0
