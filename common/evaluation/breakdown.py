@@ -4,9 +4,9 @@ The figures of EVALUATION.md say how many moving objects were missed; the first 
 every run is why. Each scored truth-frame is put in one row: what the tracker made of it (found,
 a tracked obstacle with the wrong label, no tracked obstacle at all) against what the voxel
 mapper gave it (one cluster, several, none of its own but a box shared with a neighbour, nothing).
-A walker "labelled stationary" with "one" cluster is the tracker's speed estimate; "no track" with
-"merged" is the mapper's. Matching, warm-up and grace are the figures' own, so the moving rows add
-up to TP + FN and the stationary rows to the stationary objects scored.
+A moving walker with a "wrong label" and "one" cluster is lost to the tracker's speed estimate; one
+with "no track" and "merged" is lost to the mapper. Matching, warm-up and grace are the figures'
+own, so the moving rows add up to TP + FN and the stationary rows to the stationary objects scored.
 """
 
 from __future__ import annotations
@@ -14,16 +14,21 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass, field
 
-from common.evaluation.inputs import FrameClusters, RunInputs
+import numpy as np
+import numpy.typing as npt
+
+from common.evaluation.inputs import RunInputs
 from common.evaluation.matching import FrameMatch, TruthView
 from common.evaluation.metrics import WARMUP_FRAMES, grace_ids, scored_class
 from common.evaluation.segmentation import CLUSTER_MARGIN_M, box_overlaps, clusters_in_vehicle, inside_box
 
 #: what the tracker made of a scored truth-frame, for a moving and for a stationary object.
 FOUND, WRONG_LABEL, NO_TRACK = "found", "wrong label", "no track"
-#: what the voxel mapper gave it (segmentation.py's definitions).
+#: what the voxel mapper gave it: one, split and none as segmentation.py counts clusters by centroid;
+#: merged when no centroid lies on it but a box overlaps it (it is inside another object's cluster).
 SEGMENTS: tuple[str, ...] = ("one", "split", "merged", "none", "no clusters")
 
+F64 = npt.NDArray[np.float64]
 Row = tuple[str, str, str]  # (object class, outcome, segment)
 
 
@@ -39,11 +44,14 @@ class Breakdown:
         return sum(n for (_, o, _), n in rows.items() if outcome is None or o == outcome)
 
 
-def segment_of(truth: TruthView, frame_clusters: FrameClusters | None) -> str:
-    """One, split, merged (no centroid inside, a box shared with it) or none; no clusters recorded."""
-    if frame_clusters is None:
+Boxes = tuple[F64, F64, F64]  # cluster centroids, box minima, box maxima in the vehicle frame
+
+
+def segment_of(truth: TruthView, boxes: Boxes | None) -> str:
+    """One, split, merged or none (SEGMENTS); "no clusters" when the run recorded none that frame."""
+    if boxes is None:
         return "no clusters"
-    centroids, lows, highs = clusters_in_vehicle(frame_clusters)
+    centroids, lows, highs = boxes
     n = int(inside_box(centroids, truth, CLUSTER_MARGIN_M).sum())
     if n == 1:
         return "one"
@@ -59,6 +67,8 @@ def breakdown(run: RunInputs, frames: list[FrameMatch], warmup: int = WARMUP_FRA
     out = Breakdown()
     for frame, young in list(zip(frames, grace_ids(frames), strict=True))[warmup:]:
         det_of = frame.detection_of()
+        clusters = run.clusters.get(frame.frame_id)
+        boxes = None if clusters is None else clusters_in_vehicle(clusters)
         for t, truth in enumerate(frame.truths):
             motion = scored_class(truth, young)
             if motion == "ignored":
@@ -68,7 +78,7 @@ def breakdown(run: RunInputs, frames: list[FrameMatch], warmup: int = WARMUP_FRA
                 outcome = NO_TRACK
             else:
                 outcome = FOUND if frame.detections[d].moving == (motion == "moving") else WRONG_LABEL
-            row = (cls_of.get(truth.id, "?"), outcome, segment_of(truth, run.clusters.get(frame.frame_id)))
+            row = (cls_of.get(truth.id, "?"), outcome, segment_of(truth, boxes))
             getattr(out, motion)[row] += 1
     return out
 
