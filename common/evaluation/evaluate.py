@@ -49,6 +49,7 @@ class Evaluation:
     true_trajectory: list[F64] = field(default_factory=list)
     speed_errors: list[float] = field(default_factory=list)
     stage_ms: dict[str, dict[int, float]] = field(default_factory=dict)
+    frames: list[FrameMatch] = field(default_factory=list)  # truths and detections paired, per frame
 
 
 def matched_frames(run: RunInputs) -> list[FrameMatch]:
@@ -134,7 +135,7 @@ def obstacle_figures(run: RunInputs, ev: Evaluation) -> dict[str, Any]:
         rate = float(run.info.get("frame_rate_hz", 10.0))
         refitted = fit_velocities(run.truth, rate)
         ev.notes.append(f"{source}: {refitted} true velocities refitted from positions over +-5 frames")
-    frames = matched_frames(run)
+    frames = ev.frames = matched_frames(run)
     if not run.true_poses:
         ev.notes.append("no groundtruth/ego: ground-truth objects taken as already in the vehicle frame")
     if run.calib is None:
@@ -239,6 +240,6 @@ def run(args: argparse.Namespace) -> int:
     if args.why:
         from common.evaluation.breakdown import breakdown, format_breakdown
 
-        table = format_breakdown(breakdown(run_inputs, matched_frames(run_inputs)))
+        table = format_breakdown(breakdown(run_inputs, ev.frames))
         print(table, file=sys.stderr if args.json else sys.stdout)
     return 0
