@@ -117,6 +117,8 @@ class Recorder:
         self.error: RecordingError | None = None
         self._queue = ByteQueue(int(rc.queue_mb * 1024 * 1024), block=rc.when_full == "block")
         self._flush_s = rc.flush_interval_s
+        self._quiet_s, self._quiet_max_s = rc.stop_quiet_s, rc.stop_quiet_max_s
+        self._last_arrival = time.monotonic()
         self._draining = threading.Event()
         self._thread = threading.Thread(target=self._write_loop, name="recorder-writer", daemon=True)
         self._thread.start()
@@ -129,6 +131,7 @@ class Recorder:
         """The hot path: copy out of Zenoh, stamp, enqueue; nothing is decoded here."""
         start = time.perf_counter()
         received = time.time_ns()
+        self._last_arrival = time.monotonic()
         self.stats.received += 1
         key = str(sample.key_expr)
         if not self._queue.put((key, sample.payload.to_bytes(), received)):
@@ -192,7 +195,18 @@ class Recorder:
         return (float(np.percentile(times, 50)), float(np.percentile(times, 95))) if times.size else (0.0, 0.0)
 
     def close(self) -> None:
-        """Stop receiving, write what is queued, finish the file."""
+        """Stop receiving once the bus is quiet, write what is queued, finish the file.
+
+        A recorder is stopped after the stages that feed it, but their last messages may still be
+        on their way through the router: undeclaring at once would lose them. So it keeps
+        listening until nothing has arrived for ``stop_quiet_s`` (at most ``stop_quiet_max_s``).
+        """
+        started = time.monotonic()
+        while not self.failed:
+            now = time.monotonic()
+            if now - self._last_arrival >= self._quiet_s or now - started >= self._quiet_max_s:
+                break
+            time.sleep(min(0.05, self._quiet_s))
         self._sub.undeclare()
         self._draining.set()
         self._thread.join()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import os
 import signal
 import subprocess
 import threading
@@ -158,6 +159,28 @@ def test_sigkill_loses_at_most_one_chunk(tmp_path: Path, processes: Processes, h
     assert sent - per_chunk <= len(frames) <= sent
     assert frames == list(range(len(frames)))
     assert reader.truncated is not None  # no summary: SIGKILL gave it no chance
+
+
+def test_a_stopped_recorder_keeps_what_is_still_arriving(tmp_path: Path, processes: Processes, hub: Hub) -> None:
+    """SIGINT while messages still come, 0.1 s apart: the recorder waits for a quiet bus and keeps them all.
+
+    This is the shutdown of a pipeline: the recorder is stopped after its stages, and their last
+    messages may still be on the way through the router.
+    """
+    out = tmp_path / "stopped.mcap"
+    recorder = start_recorder(processes, hub, out, "--set", "recorder.stop_quiet_s=0.5")
+    pub = Publisher(hub.session, CAMERA)
+    img = np.zeros((48, 64, 3), dtype=np.uint8)
+    sent = 12
+    for i in range(sent):
+        pub.put(StereoFrame(frame_id=i, stamp_ns=i * 1000, left=img, right=img, calib=CALIB))
+        if i == 2:
+            wait_for(lambda: hub.written("camera/stereo") >= 1, 30, "the first frame written")
+            os.killpg(recorder.pid, signal.SIGINT)
+        time.sleep(0.1)
+    pub.close()
+    assert recorder.wait(30) == 0, processes.log(recorder)
+    assert [m.frame_id for _, m in open_recording(out).messages(keys=[CAMERA])] == list(range(sent))
 
 
 def test_unwritable_path_fails_clearly(tmp_path: Path, processes: Processes, hub: Hub) -> None:
