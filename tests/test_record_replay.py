@@ -168,7 +168,9 @@ def test_a_stopped_recorder_keeps_what_is_still_arriving(tmp_path: Path, process
     messages may still be on the way through the router.
     """
     out = tmp_path / "stopped.mcap"
-    recorder = start_recorder(processes, hub, out, "--set", "recorder.stop_quiet_s=0.5")
+    # quiet 10 times the gap, and no cap worth the name: a loaded machine must not stop it early
+    recorder = start_recorder(processes, hub, out, "--set", "recorder.stop_quiet_s=1.0",
+                              "--set", "recorder.stop_quiet_max_s=30")
     pub = Publisher(hub.session, CAMERA)
     img = np.zeros((48, 64, 3), dtype=np.uint8)
     sent = 12
