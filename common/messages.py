@@ -98,6 +98,9 @@ class Cluster:
     id: int
     voxels: NDArray = array_field("int32", (None, 3))  # integer voxel coordinates
     voxel_count: int
+    # this frame's stereo points in each voxel, in the order of ``voxels``; empty in recordings
+    # made before it existed (the tracker then weighs every voxel alike)
+    voxel_points: NDArray = array_field("int32", (None,), _zeros(0, dtype="int32"))
     color_mean_rgb: NDArray = array_field("float32", (3,))  # 0..1
     color_var_rgb: NDArray = array_field("float32", (3,))
     color_mean_hsl: NDArray = array_field("float32", (3,))  # 0..1

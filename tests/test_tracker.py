@@ -13,9 +13,10 @@ from common.config import Config
 from common.geometry import make_pose, rot_z
 from common.messages import Cluster, Clusters, EgoMotion, Obstacles, decode, encode
 from services.tracker import Tracker, kalman
+from services.tracker import anchor as anchor_module
 from services.tracker.anchor import anchors
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
-from services.tracker.fragments import chained
+from services.tracker.fragments import chained, merge
 
 EDGE = 0.25
 PERIOD_NS = 100_000_000
@@ -404,6 +405,60 @@ def test_anchor_stays_on_the_faces_in_view_while_the_far_side_grows() -> None:
     a, b = points[0, 2], points[1, 2]
     assert abs(a[0] - b[0]) < 0.3 and abs(a[1] - b[1]) < 0.01  # the centroids are 1.75 m apart
     assert abs(short.centroid[0] - long.centroid[0]) > 1.5
+
+
+def smeared(lo: tuple[float, float, float], hi: tuple[float, float, float], core_points: int,
+            fringe_points: int | None = 1, fringe_m: float = 1.0) -> Cluster:
+    """A box's voxels with ``core_points`` each, behind a fringe ``fringe_m`` deep of voxels holding ``fringe_points``.
+
+    The fringe is stereo smear along the line of sight; ``None`` gives a cluster from a recording
+    made before the mapper counted points per voxel.
+    """
+    core, fringe = surface(lo, hi), surface((lo[0] - fringe_m, lo[1], lo[2]), (lo[0], hi[1], hi[2]))
+    points = np.concatenate([np.full(core.voxel_count, core_points), np.full(fringe.voxel_count, fringe_points or 0)])
+    return Cluster(**{**vars(core), "voxels": np.concatenate([core.voxels, fringe.voxels]),
+                      "voxel_count": core.voxel_count + fringe.voxel_count,
+                      "voxel_points": points.astype(np.int32) if fringe_points is not None else np.zeros(0, np.int32)})
+
+
+def test_a_narrow_cluster_is_followed_at_its_points_median_range_a_wide_one_at_its_near_face() -> None:
+    walker = smeared((20.0, -0.25, 0.0), (20.5, 0.25, 1.75), core_points=60)  # 0.5 m wide, 3 % of points in the fringe
+    car = smeared((20.0, -4.0, 0.25), (24.0, -1.5, 1.5), core_points=60)  # 2.5 m wide
+    old = smeared((20.0, -0.25, 0.0), (20.5, 0.25, 1.75), core_points=60, fringe_points=None)
+    clusters = [walker, car, old]
+    points, _, far = anchors(clusters, np.array([c.centroid for c in clusters]), np.eye(4), EDGE)
+    assert points[0, 1, 0] == pytest.approx(20.125, abs=0.01)  # the core's first layer holds the median point
+    assert points[1, 2, 0] == pytest.approx(19.125, abs=0.01)  # the near face, fringe and all
+    assert points[2, 1, 0] == pytest.approx(19.125, abs=0.01)  # without counts: the near face, as before
+    assert points[0, 1, 0] + far[0, 0] == pytest.approx(20.375, abs=0.01)  # the far end stays the far end
+
+
+@pytest.mark.parametrize("narrow_m", [2.0, 0.0])
+def test_a_walker_coming_closer_inside_a_shrinking_smear_is_called_moving(
+    narrow_m: float, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # 1.5 m/s towards the camera from 30 m; the fringe before the walker shrinks by 1.5 m/s, so its
+    # near face stands still (the case of urban-s2's walker 66). NARROW_M = 0: the near face only.
+    monkeypatch.setattr(anchor_module, "NARROW_M", narrow_m)
+    tracker, moving = new_tracker(), []
+    for k in range(20):
+        x = 30.0 - 0.15 * k
+        walker = smeared((x, -0.25, 0.0), (x + 0.5, 0.25, 1.75), core_points=60, fringe_m=3.0 - 0.15 * k)
+        (o,) = step(tracker, k, [walker]).obstacles
+        moving.append(o.moving)
+    if narrow_m > 0:
+        assert all(moving[-4:]) and o.velocity[0] == pytest.approx(-1.5, abs=0.3), (moving, o.velocity)
+    else:
+        assert not any(moving) and abs(o.velocity[0]) < 0.5, (moving, o.velocity)
+
+
+def test_merged_pieces_keep_their_point_counts_voxel_for_voxel() -> None:
+    a, b = surface((20.0, -0.25, 0.0), (20.5, 0.25, 1.75)), surface((20.5, -0.25, 0.0), (21.0, 0.25, 1.75), cid=1)
+    a = Cluster(**{**vars(a), "voxel_points": np.full(a.voxel_count, 7, np.int32)})
+    b = Cluster(**{**vars(b), "voxel_points": np.arange(b.voxel_count, dtype=np.int32)})
+    both = merge([a, b], EDGE)
+    assert both.voxel_points.tolist() == [7] * a.voxel_count + list(range(b.voxel_count))
+    assert merge([a, Cluster(**{**vars(b), "voxel_points": np.zeros(0, np.int32)})], EDGE).voxel_points.size == 0
 
 
 def test_object_crossing_the_line_of_sight_keeps_its_lateral_speed() -> None:

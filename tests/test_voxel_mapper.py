@@ -205,6 +205,17 @@ def test_static_box_stays_fixed_in_the_world_while_the_vehicle_moves() -> None:
         assert overlap > 0.9  # the same world voxels, give or take cells the rotated road clips
 
 
+def test_each_voxel_carries_the_points_this_frame_put_in_it() -> None:
+    vm = mapper()
+    red = box((10.1, 2.1, 0), (12.1, 3.6, 1.8), RED)
+    for k in range(2):  # the same cloud twice: the counts are this frame's, not the voxel's history
+        (c,) = vm.process(cloud(road(), red, frame_id=k), ego(frame_id=k)).clusters
+        cells, per_cell = np.unique(np.floor(red[0] / vm.map.edge).astype(np.int64), axis=0, return_counts=True)
+        expected = dict(zip(map(tuple, cells.tolist()), per_cell.tolist(), strict=True))
+        assert c.voxel_points.shape == (c.voxel_count,)
+        assert c.voxel_points.tolist() == [expected[tuple(v)] for v in c.voxels.tolist()]
+
+
 def test_new_epoch_resets_the_map() -> None:
     vm = mapper(keep_frames=5)
     vm.process(cloud(road(), box((6, -1, 0), (8, 1, 1.5), RED)), ego())

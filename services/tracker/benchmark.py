@@ -25,12 +25,12 @@ SHAPES = np.array([[0.5, 0.5, 1.75], [0.5, 1.75, 1.5], [4.5, 0.5, 1.5]])
 
 
 def box_cluster(cid: int, lo: np.ndarray, size: np.ndarray, rgb: np.ndarray) -> Cluster:
-    """The cluster of the voxels filling ``lo``..``lo + size``."""
+    """The cluster of the voxels filling ``lo``..``lo + size``, 8 points in each (as the mapper counts them)."""
     axes = [np.arange(np.floor(a / EDGE), np.floor((a + s) / EDGE)) for a, s in zip(lo, size, strict=True)]
     voxels = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3).astype(np.int32)
     centres = (voxels + 0.5) * EDGE
     return Cluster(
-        id=cid, voxels=voxels, voxel_count=len(voxels),
+        id=cid, voxels=voxels, voxel_count=len(voxels), voxel_points=np.full(len(voxels), 8, np.int32),
         color_mean_rgb=rgb.astype(np.float32), color_var_rgb=np.zeros(3, np.float32),
         color_mean_hsl=rgb.astype(np.float32), color_var_hsl=np.zeros(3, np.float32),
         bbox_min=centres.min(axis=0) - EDGE / 2, bbox_max=centres.max(axis=0) + EDGE / 2,

@@ -47,6 +47,14 @@ def claims(centroids: NDArray, box_min: NDArray, box_max: NDArray, margin: float
     return np.all((c >= lo) & (c <= hi), axis=2)
 
 
+def _pooled_points(pieces: list[Cluster]) -> np.ndarray:
+    """The pieces' per-voxel point counts in the order of their pooled voxels; empty unless every piece has them."""
+    per = [np.asarray(p.voxel_points) for p in pieces]
+    if any(len(w) != len(np.asarray(p.voxels)) for w, p in zip(per, pieces, strict=True)):
+        return np.zeros(0, dtype=np.int32)
+    return np.concatenate(per).astype(np.int32)
+
+
 def merge(pieces: list[Cluster], edge: float) -> Cluster:
     """One cluster out of several: voxels pooled, box joined, colour of the largest piece."""
     counts = np.array([p.voxel_count for p in pieces], dtype=np.float64)
@@ -59,6 +67,7 @@ def merge(pieces: list[Cluster], edge: float) -> Cluster:
         id=largest.id,
         voxels=np.concatenate([np.asarray(p.voxels) for p in pieces]),
         voxel_count=int(counts.sum()),
+        voxel_points=_pooled_points(pieces),
         color_mean_rgb=largest.color_mean_rgb,
         color_var_rgb=largest.color_var_rgb,
         color_mean_hsl=largest.color_mean_hsl,

@@ -1,5 +1,8 @@
 """What each cluster carries out of step 4: voxels, count, colour, box, centroid, density, volume.
 
+Each voxel also carries the points this frame put in it, so that the tracker can place a
+cluster where its points are rather than where its voxels are (services/tracker/anchor.py).
+
 Colour mean and variance pool every point of the cluster's voxels (from the per-voxel sums), so a
 voxel seen by many points weighs more than one seen once. The centroid is the mean of the voxels'
 point centroids (each voxel once, so near surfaces, which collect many more points, do not pull
@@ -34,6 +37,7 @@ def describe(vmap: VoxelMap, labels: npt.NDArray[np.int32]) -> list[Cluster]:
 
     stats = vmap.stats[slots]
     coords = vmap.coords[slots]
+    hits = np.rint(vmap.hits[slots]).astype(np.int32)
     centroids = stats[:, XYZ] / stats[:, 0:1]
     sums = np.add.reduceat(stats, starts, axis=0)
     points = sums[:, 0]
@@ -54,6 +58,7 @@ def describe(vmap: VoxelMap, labels: npt.NDArray[np.int32]) -> list[Cluster]:
             id=rank,
             voxels=np.ascontiguousarray(coords[s:s + counts[c]], dtype=np.int32),
             voxel_count=int(counts[c]),
+            voxel_points=hits[s:s + counts[c]].copy(),
             color_mean_rgb=rgb_mean[c], color_var_rgb=rgb_var[c],
             color_mean_hsl=hsl_mean[c], color_var_hsl=hsl_var[c],
             bbox_min=box_lo[c], bbox_max=box_hi[c], centroid=centre[c],
