@@ -61,10 +61,9 @@ def anchors(
     Side 0 takes the low-y face (object left of the line of sight), 1 the middle (straddling it),
     2 the high-y face (right of it); x is the near face (a narrow cluster's median range) and z
     the centroid's in all three. A cluster without voxels, or a frame without a pose, keeps its
-    centroid for every side. The far-end shift moves a point from there to the far end along the
-    vehicle's x
-    (the high percentile), the other end of the object: a rigid object's two ends move together,
-    a box growing or uncovered at one end moves only that end (motion_window.py).
+    centroid for every side. The far-end shift moves that point to the far end along the
+    vehicle's x (the high percentile), the other end of the object: a rigid object's two ends move
+    together, a box growing or uncovered at one end moves only that end (motion_window.py).
     A percentile is the first voxel whose running count (or running points) reaches its share,
     taken for every cluster at once from one sort of all voxels by (cluster, value): per-cluster
     ``np.quantile`` calls cost 25 ms for 50 clusters.
