@@ -210,8 +210,8 @@ class RecorderConfig:
     queue_mb: float = 256.0  # received messages waiting for the disk, at most
     when_full: str = "drop"  # drop (count, never slow the pipeline) | block (push back, lose nothing)
     flush_interval_s: float = 1.0  # a SIGKILL loses at most this much (one chunk)
-    stop_quiet_s: float = 0.3  # on a clean stop, keep listening until nothing arrived for this long
-    stop_quiet_max_s: float = 3.0  # ... but no longer than this, on a bus that never goes quiet
+    stop_quiet_s: float = 1.0  # on a clean stop, keep listening until nothing arrived for this long
+    stop_quiet_max_s: float = 5.0  # ... but no longer than this, on a bus that never goes quiet
 
 
 @dataclass

@@ -298,7 +298,7 @@ def _assert_recorder_lost_at_most_its_last_chunk(
 @pytest.mark.timeout(120)
 def test_recording_loses_only_the_outages(pipeline: Pipeline, capsys: pytest.CaptureFixture[str]) -> None:
     """After the kills: the recorder's files hold every message the observer saw but those of its own outage."""
-    stop_at = time.monotonic()
+    stop_at, stop_wall = time.monotonic(), time.time()
     assert pipeline.procs.stop(pipeline.launch) == 0, pipeline.procs.log(pipeline.launch)
     files = sorted(pipeline.out.glob("run*.mcap"))
     recorded: set[tuple[str, int]] = set()
@@ -327,6 +327,11 @@ def test_recording_loses_only_the_outages(pipeline: Pipeline, capsys: pytest.Cap
                                else ("own frames", "lost"))
             print(f"  {k.service:13s} restart {k.restart_s:5.2f} s  {frames} {reports} {len(k.lost):3d}  "
                   f"obstacle reports {reports} {len(k.lost_obstacles):3d}")
+    if outside:  # what the launcher and the recorder said about the stop, to tell where the loss happened
+        logs = pipeline.out / "logs"
+        tails = {p.name: p.read_text(errors="replace")[-600:] for p in sorted(logs.glob("*.log"))}
+        print(f"stop at {time.strftime('%H:%M:%S', time.localtime(stop_wall))}.{int(stop_wall % 1 * 1000):03d}",
+              pipeline.procs.log(pipeline.launch)[-3000:], tails)
     assert not outside, f"lost outside the recorder's outage: {outside[:20]}"
     assert len(seen) > 100
 
