@@ -327,7 +327,7 @@ def test_recording_loses_only_the_outages(pipeline: Pipeline, capsys: pytest.Cap
                                else ("own frames", "lost"))
             print(f"  {k.service:13s} restart {k.restart_s:5.2f} s  {frames} {reports} {len(k.lost):3d}  "
                   f"obstacle reports {reports} {len(k.lost_obstacles):3d}")
-    if outside:  # what the launcher and the recorder said about the stop, to tell where the loss happened
+    if outside:  # what the launcher and every service logged about the stop, to tell where the loss happened
         logs = pipeline.out / "logs"
         tails = {p.name: p.read_text(errors="replace")[-600:] for p in sorted(logs.glob("*.log"))}
         print(f"stop at {time.strftime('%H:%M:%S', time.localtime(stop_wall))}.{int(stop_wall % 1 * 1000):03d}",
