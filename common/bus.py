@@ -21,9 +21,10 @@ from typing import Generic, TypeVar
 
 import zenoh
 
+from common.codec import decode, encode
 from common.config import BusConfig
 from common.errors import BusError, DecodeError
-from common.messages import Message, decode, encode, key_for
+from common.messages import Message, key_for
 
 log = logging.getLogger(__name__)
 

@@ -2,7 +2,7 @@
 
 A message can be well-typed and still poison a stage: one NaN in a pose spreads through every
 later frame of the odometry's state, a zero baseline divides, images that do not fit their
-calibration reproject to nonsense. The decoder (``common.messages.decode``) runs these checks, so
+calibration reproject to nonsense. The decoder (``common.codec.decode``) runs these checks, so
 such a message is refused once, counted and dropped, and no stage sees it.
 """
 

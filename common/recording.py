@@ -31,8 +31,9 @@ from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
+from common.codec import decode, encode
 from common.errors import DecodeError, RecordingError
-from common.messages import HEALTH_TOPIC_PREFIX, SCHEMAS, TOPICS, Health, Message, decode, encode, topic_of
+from common.messages import HEALTH_TOPIC_PREFIX, SCHEMAS, TOPICS, Health, Message, topic_of
 
 MESSAGE_ENCODING = "msgpack"
 PROFILE = "stereovox"

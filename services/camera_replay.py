@@ -28,9 +28,10 @@ import msgpack
 import zenoh
 
 from common.bus import Publisher, declare_alive, open_session, subscribe, watch_alive
+from common.codec import decode, encode
 from common.config import Config
 from common.errors import BusError, ConfigError, DecodeError
-from common.messages import TOPICS, StereoFrame, decode, encode, key_for, now_ns, topic_of
+from common.messages import TOPICS, StereoFrame, key_for, now_ns, topic_of
 from common.recording import RawRecord, RecordingReader, open_recording, peek_stamp
 from common.wire_arrays import IMAGE_FORMATS
 from services.health import HealthReporter, StageHealth

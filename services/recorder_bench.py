@@ -25,8 +25,9 @@ import cv2
 import numpy as np
 
 from common.bus import Publisher, open_session
+from common.codec import decode, encode
 from common.config import BusConfig
-from common.messages import Calibration, Health, StereoFrame, decode, encode, key_for
+from common.messages import Calibration, Health, StereoFrame, key_for
 from common.recording import COMPRESSIONS, RecordingWriter, peek_stamp
 
 WIDTH, HEIGHT = 640, 480

@@ -21,8 +21,9 @@ import numpy as np
 import zenoh
 
 from common.bus import open_session
+from common.codec import decode
 from common.errors import ConfigError, DecodeError
-from common.messages import DEFAULT_VEHICLE, decode, key_for
+from common.messages import DEFAULT_VEHICLE, key_for
 from services.runner import add_bus_arguments, bus_config, stop_on_signals
 
 #: how long ``list`` listens when no --duration is given.

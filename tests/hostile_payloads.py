@@ -20,6 +20,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from common.codec import encode
 from common.messages import (
     HEALTH_TOPIC_PREFIX,
     TOPICS,
@@ -31,7 +32,6 @@ from common.messages import (
     Message,
     PointCloud,
     StereoFrame,
-    encode,
 )
 
 Wire = dict[str, Any]

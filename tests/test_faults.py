@@ -35,8 +35,9 @@ import zenoh
 from conftest import REPO, Processes, free_port, stereovox_cmd, wait_for
 
 from common.bus import declare_alive, open_session, subscribe, watch_alive
+from common.codec import decode
 from common.config import BusConfig, Config
-from common.messages import EgoMotion, Health, Obstacles, StereoFrame, decode, key_for, topic_of
+from common.messages import EgoMotion, Health, Obstacles, StereoFrame, key_for, topic_of
 from common.recording import open_recording, peek_stamp
 
 pytestmark = pytest.mark.reliability

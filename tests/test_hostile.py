@@ -33,9 +33,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from common.bus import Publisher, declare_alive, open_session, watch_alive
+from common.codec import decode, encode
 from common.config import BusConfig
 from common.errors import DecodeError
-from common.messages import TOPICS, Health, Message, Obstacles, VehicleMotion, decode, encode, key_for, topic_of
+from common.messages import TOPICS, Health, Message, Obstacles, VehicleMotion, key_for, topic_of
 from common.recording import open_recording
 from services.demo import BUNDLED, LOCAL_SPEC, recording_settings
 from services.launch_spec import load_spec

@@ -12,9 +12,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from common.codec import decode, encode
 from common.errors import DecodeError
 from common.messages import (
-    MAX_ARRAY_BYTES,
     MESSAGE_TYPES,
     Calibration,
     Cluster,
@@ -32,11 +32,10 @@ from common.messages import (
     PointCloud,
     StereoFrame,
     VehicleMotion,
-    decode,
-    encode,
     merged_trail,
     stamp_output,
 )
+from common.wire_arrays import MAX_ARRAY_BYTES
 
 RNG = np.random.default_rng(7)
 TRAIL = [("camera_replay", 100, 100), ("stereo_depth", 120, 180)]

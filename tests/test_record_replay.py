@@ -21,9 +21,10 @@ from fake_recording import frame as fake_frame
 from mcap.reader import make_reader
 
 from common.bus import Publisher, declare_alive, open_session, watch_alive
+from common.codec import decode, encode
 from common.config import BusConfig, Config
 from common.errors import DecodeError
-from common.messages import Health, Message, Obstacles, StereoFrame, decode, encode, key_for
+from common.messages import Health, Message, Obstacles, StereoFrame, key_for
 from common.recording import RecordingWriter, open_recording, peek_stamp
 from services.camera_replay import stereo_wire
 

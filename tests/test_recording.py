@@ -10,9 +10,10 @@ import pytest
 from fake_recording import CALIB, PERIOD_NS, START_NS, frame, ground_truth, write_recording
 from mcap.reader import make_reader
 
+from common.codec import encode
 from common.config import Config
 from common.errors import RecordingError
-from common.messages import StereoFrame, encode, key_for
+from common.messages import StereoFrame, key_for
 from common.recording import RecordingReader, RecordingWriter, open_recording, peek_stamp
 
 

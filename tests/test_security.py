@@ -25,9 +25,10 @@ import zenoh
 from conftest import REPO, Processes, free_port, stereovox_cmd, wait_for
 
 from common.bus import declare_alive, open_session, watch_alive
+from common.codec import decode
 from common.config import BusConfig
 from common.errors import BusError
-from common.messages import Health, decode, key_for
+from common.messages import Health, key_for
 from common.recording import open_recording
 from services.demo import BUNDLED, recording_settings
 

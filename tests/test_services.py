@@ -16,6 +16,7 @@ import zenoh
 from conftest import Processes, free_port, stereovox_cmd, wait_for
 
 from common.bus import Publisher, open_session, subscribe, watch_alive
+from common.codec import encode
 from common.config import BusConfig, Config
 from common.errors import InputError
 from common.messages import (
@@ -26,7 +27,6 @@ from common.messages import (
     Obstacles,
     PointCloud,
     StereoFrame,
-    encode,
     key_for,
     now_ns,
 )

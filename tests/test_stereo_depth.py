@@ -10,11 +10,12 @@ import pytest
 from conftest import shared_path
 from textures import blob_texture
 
+from common.codec import decode, encode
 from common.config import Config, load_config
 from common.errors import CalibrationError, ConfigError, InputError
 from common.evaluation.stereo import d1_frame
 from common.geometry import camera_to_vehicle
-from common.messages import Calibration, StereoFrame, decode, encode
+from common.messages import Calibration, StereoFrame
 from services.stereo_depth import StereoDepth
 from services.stereo_depth.occlusion import fill_hidden
 

@@ -9,9 +9,10 @@ import pytest
 from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter
 
+from common.codec import decode, encode
 from common.config import Config
 from common.geometry import make_pose, rot_z
-from common.messages import Cluster, Clusters, EgoMotion, Obstacles, decode, encode
+from common.messages import Cluster, Clusters, EgoMotion, Obstacles
 from services.tracker import Tracker, kalman
 from services.tracker import anchor as anchor_module
 from services.tracker.anchor import anchors

@@ -7,10 +7,11 @@ import colorsys
 import numpy as np
 import pytest
 
+from common.codec import decode, encode
 from common.config import Config
 from common.errors import ConfigError, InputError
 from common.geometry import make_pose, rot_z
-from common.messages import Clusters, EgoMotion, GroundTruthObject, GroundTruthObjects, PointCloud, decode, encode
+from common.messages import Clusters, EgoMotion, GroundTruthObject, GroundTruthObjects, PointCloud
 from services.voxel_mapper import VoxelMapper
 from services.voxel_mapper.colour import hsl_of
 from services.voxel_mapper.overhang import Overhang, frame_rows, overhangs
