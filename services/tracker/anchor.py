@@ -83,22 +83,27 @@ def anchors(
     starts = np.minimum(np.concatenate([[0], np.cumsum(counts)[:-1]]), len(voxels) - 1)
     last = np.maximum(np.cumsum(counts) - 1, starts)
 
-    def ranked(values: NDArray, shares: tuple[float, ...], weights: NDArray | None = None) -> list[NDArray]:
-        """Per cluster, the first value (ascending) whose running weight reaches each share of the total."""
+    weights, counted = _points_per_voxel(clusters, counts)
+    by_count = np.arange(1.0, len(voxels) + 1.0)
+
+    def ranked(values: NDArray, by_voxels: tuple[float, ...], by_points: tuple[float, ...]) -> list[NDArray]:
+        """Per cluster, the first value (ascending) whose running count, then running points, reach each share.
+
+        One sort serves both: the faces count voxels, a narrow cluster's range and width its points.
+        """
         low = values.min()
         order = np.argsort(label * (float(values.max() - low) + 1.0) + (values - low))
         ordered = values[order]
-        cum = np.cumsum(weights[order]) if weights is not None else np.arange(1.0, len(values) + 1.0)
-        before = np.where(starts > 0, cum[np.maximum(starts - 1, 0)], 0.0)
-        total = cum[last] - before
-        return [ordered[np.clip(np.searchsorted(cum, before + share * total), starts, last)] for share in shares]
+        out = []
+        for cum, shares in ((by_count, by_voxels), (np.cumsum(weights[order]), by_points)):
+            before = np.where(starts > 0, cum[np.maximum(starts - 1, 0)], 0.0)
+            total = cum[last] - before
+            out += [ordered[np.clip(np.searchsorted(cum, before + share * total), starts, last)] for share in shares]
+        return out
 
     q = FACE_PERCENTILE / 100.0
-    near_x, far_x = ranked(local[:, 0], (q, 1.0 - q))
-    y_lo, y_hi = ranked(local[:, 1], (q, 1.0 - q))
-    weights, counted = _points_per_voxel(clusters, counts)
-    (range_x,) = ranked(local[:, 0], (0.5,), weights)
-    width_lo, width_hi = ranked(local[:, 1], (0.05, 0.95), weights)
+    near_x, far_x, range_x = ranked(local[:, 0], (q, 1.0 - q), (0.5,))
+    y_lo, y_hi, width_lo, width_hi = ranked(local[:, 1], (q, 1.0 - q), (0.05, 0.95))
     x = np.where(counted & (width_hi - width_lo < NARROW_M), range_x, near_x)
     z = (out[:, 0] - origin) @ rotation[:, 2]
     for k, y in enumerate((y_lo, 0.5 * (y_lo + y_hi), y_hi)):
