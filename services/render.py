@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from common import messages as sv
+from common.codec import decode
 from common.errors import InputError
 from common.geometry import invert
 from common.overlay import BirdsEye, draw_track_on_image, world_to_camera
@@ -153,7 +154,7 @@ def render_recording(run: Path, out: Path, frames: tuple[int, int] = (0, sys.max
                 break  # tracker output comes in frame order: nothing later is wanted
             if topic != "tracker/obstacles" and not first <= stamp[0] < stop:
                 continue
-            msg = sv.decode(rec.data)
+            msg = decode(rec.data)
             if isinstance(msg, sv.Obstacles):
                 if msg.world_epoch != epoch:  # the world was re-anchored: the old path is in another frame
                     epoch = msg.world_epoch
