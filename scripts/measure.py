@@ -4,9 +4,11 @@
     .venv/bin/python scripts/measure.py --out /tmp/measure            # everything (~10 min)
     .venv/bin/python scripts/measure.py --out /tmp/measure --only urban,kitti-tracking
 
-Scenarios are rendered with seeds 7 and 8, which no parameter was tuned on (tuning used seeds 1
-and 2). Real data comes from ../shared/data (KITTI raw 0009, tracking 0001, odometry 04,
-Middlebury cones and teddy).
+Scenarios are rendered with seeds 7 and 8 by default, which no parameter was tuned on (tuning
+uses seeds 1-6). ``--seeds 7,8,9,10`` widens the held-out set; the pooled table then sums each
+scenario's counts over its seeds, since one 40-frame run holds only 5-10 moving objects and two
+seeds differ by more than most changes do. Real data comes from ../shared/data (KITTI raw 0009,
+tracking 0001, odometry 04, Middlebury cones and teddy).
 """
 
 from __future__ import annotations
@@ -29,7 +31,6 @@ from services.pipeline import process_file  # noqa: E402
 
 SHARED = REPO.parent / "shared" / "data"
 SCENARIOS = ("urban", "crossing", "overtake", "hanging", "slope", "lowtexture")
-SEEDS = (7, 8)
 RAW = SHARED / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0009_sync"
 ODO = SHARED / "kitti_odometry" / "dataset"
 
@@ -74,10 +75,12 @@ def get(result: dict[str, Any], *path: str) -> Any:
 
 
 def tracking_table(results: dict[str, dict[str, Any]]) -> str:
-    rows = ["| run | moving TP / FP / FN % | moving tracks recall (latency, frames) | speed RMSE m/s "
-            "| stationary recall % / labelled moving % | parked tracks called moving | obstacle precision "
-            "| id switches | one-cluster % | phantom clusters / frame |",
-            "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    rows = [
+        "| run | moving TP / FP / FN % | moving tracks recall (latency, frames) | speed RMSE m/s "
+        "| stationary recall % / labelled moving % | parked tracks called moving | obstacle precision "
+        "| id switches | one-cluster % | phantom clusters / frame |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for name, r in results.items():
         if not any(r.get(k) for k in ("moving", "stationary_tracks", "segmentation")):
             continue
@@ -99,9 +102,36 @@ def tracking_table(results: dict[str, dict[str, Any]]) -> str:
     return "\n".join(rows)
 
 
+def pooled_table(results: dict[str, dict[str, Any]]) -> str:
+    """Per scenario, moving counts summed over its seeds and speed RMSE pooled over their TP pairs."""
+    rows = [
+        "| scenario | runs | moving TP / FP / FN % | speed RMSE m/s | parked tracks called moving |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for name, r in results.items():
+        scenario, _, seed = name.rpartition("-s")
+        if scenario in SCENARIOS and seed.isdigit() and r.get("moving"):
+            groups.setdefault(scenario, []).append(r)
+    for scenario, runs in groups.items():
+        tp, fp, fn = (sum(r["moving"][k] for r in runs) for k in ("tp", "fp", "fn"))
+        pairs = sum(get(r, "speed", "pairs") or 0 for r in runs)
+        squared = sum((get(r, "speed", "rmse_mps") or 0.0) ** 2 * (get(r, "speed", "pairs") or 0) for r in runs)
+        parked = sum(get(r, "stationary_tracks", "false_moving") or 0 for r in runs)
+        tracks = sum(get(r, "stationary_tracks", "tracks") or 0 for r in runs)
+        total = max(tp + fp + fn, 1)
+        rows.append(
+            f"| {scenario} | {len(runs)} | {100 * tp / total:.1f} / {100 * fp / total:.1f} / {100 * fn / total:.1f} "
+            f"| {fraction((squared / pairs) ** 0.5 if pairs else None)} | {parked} of {tracks} |"
+        )
+    return "\n".join(rows)
+
+
 def geometry_table(results: dict[str, dict[str, Any]]) -> str:
-    rows = ["| run | odometry t_err % | r_err deg/m | final drift % | stereo D1-all % | D1-est % | density % |",
-            "| --- | --- | --- | --- | --- | --- | --- |"]
+    rows = [
+        "| run | odometry t_err % | r_err deg/m | final drift % | stereo D1-all % | D1-est % | density % |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for name, r in results.items():
         if not (r.get("odometry") or r.get("stereo")):
             continue
@@ -120,17 +150,25 @@ def main() -> int:
     parser.add_argument("--out", type=Path, required=True, help="working folder (recordings, JSON, tables)")
     parser.add_argument("--only", default="", help="comma-separated subset: scenario names and/or real data names")
     parser.add_argument("--frames", type=int, default=40, help="frames per scenario")
+    parser.add_argument("--seeds", default="7,8", help="comma-separated scenario seeds (1-6 were tuned on)")
     args = parser.parse_args()
+    seeds = [int(s) for s in args.seeds.split(",") if s]
     args.out.mkdir(parents=True, exist_ok=True)
     only = {s for s in args.only.split(",") if s}
     jobs: dict[str, Callable[[Path], Any]] = {}
     for scenario in SCENARIOS:
-        for seed in SEEDS:
+        for seed in seeds:
             jobs[f"{scenario}-s{seed}"] = lambda out, sc=scenario, sd=seed: simulate_to_file(sc, out, args.frames, sd)
     jobs.update(REAL)
-    results = {name: measure(name, make, args.out) for name, make in jobs.items()
-               if not only or any(name.startswith(o) for o in only)}
-    tables = f"### Obstacles\n\n{tracking_table(results)}\n\n### Odometry and stereo\n\n{geometry_table(results)}\n"
+    results = {
+        name: measure(name, make, args.out)
+        for name, make in jobs.items()
+        if not only or any(name.startswith(o) for o in only)
+    }
+    tables = (
+        f"### Obstacles\n\n{tracking_table(results)}\n\n### Obstacles, each scenario's seeds pooled\n\n"
+        f"{pooled_table(results)}\n\n### Odometry and stereo\n\n{geometry_table(results)}\n"
+    )
     (args.out / "tables.md").write_text(tables)
     print(tables)
     return 0

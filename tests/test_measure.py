@@ -1,0 +1,39 @@
+"""The README's pooled table: each scenario's seeds summed, not averaged, and speed error pooled by pairs."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+
+def load_measure() -> ModuleType:
+    path = Path(__file__).resolve().parents[1] / "scripts" / "measure.py"
+    spec = importlib.util.spec_from_file_location("measure", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def run(tp: int, fp: int, fn: int, rmse: float | None, pairs: int, parked: int, tracks: int) -> dict[str, Any]:
+    return {
+        "moving": {"tp": tp, "fp": fp, "fn": fn},
+        "speed": None if rmse is None else {"rmse_mps": rmse, "pairs": pairs},
+        "stationary_tracks": {"false_moving": parked, "tracks": tracks},
+    }
+
+
+def test_seeds_are_pooled_by_counts_and_speed_by_pairs() -> None:
+    measure = load_measure()
+    results = {
+        "urban-s7": run(9, 0, 1, 1.0, 9, 1, 10),  # 90 % alone
+        "urban-s9": run(1, 1, 8, 3.0, 1, 0, 12),  # 10 % alone: a mean of shares would say 50 %
+        "crossing-s7": run(5, 0, 5, None, 0, 0, 4),
+        "kitti-tracking-0001": run(1, 2, 3, 0.5, 1, 0, 8),  # real data is not a scenario seed
+    }
+    rows = measure.pooled_table(results).splitlines()
+    assert rows[2] == "| urban | 2 | 50.0 / 5.0 / 45.0 | 1.34 | 1 of 22 |"  # sqrt((9 * 1.0^2 + 1 * 3.0^2) / 10)
+    assert rows[3] == "| crossing | 1 | 50.0 / 0.0 / 50.0 | - | 0 of 4 |"
+    assert len(rows) == 4
