@@ -115,8 +115,9 @@ def pooled_table(results: dict[str, dict[str, Any]]) -> str:
             groups.setdefault(scenario, []).append(r)
     for scenario, runs in groups.items():
         tp, fp, fn = (sum(r["moving"][k] for r in runs) for k in ("tp", "fp", "fn"))
-        pairs = sum(get(r, "speed", "pairs") or 0 for r in runs)
-        squared = sum((get(r, "speed", "rmse_mps") or 0.0) ** 2 * (get(r, "speed", "pairs") or 0) for r in runs)
+        speed = [(get(r, "speed", "rmse_mps") or 0.0, get(r, "speed", "pairs") or 0) for r in runs]
+        pairs = sum(n for _, n in speed)
+        squared = sum(rmse**2 * n for rmse, n in speed)
         parked = sum(get(r, "stationary_tracks", "false_moving") or 0 for r in runs)
         tracks = sum(get(r, "stationary_tracks", "tracks") or 0 for r in runs)
         total = max(tp + fp + fn, 1)
