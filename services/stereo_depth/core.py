@@ -19,6 +19,7 @@ from common.config import Config, StereoConfig, VolumeConfig
 from common.errors import ConfigError
 from common.messages import Calibration, Disparity, PointCloud, StereoFrame
 from services.stereo_depth.matcher import MultiResolutionMatcher
+from services.stereo_depth.ramps import RampFilter
 from services.stereo_depth.reproject import Colors, Points, Reprojector, VolumeCrop
 from services.stereo_depth.sgbm import DisparityMap, round_up_16
 from services.stereo_depth.validation import check_frame, is_textureless
@@ -42,7 +43,11 @@ class StereoDepth:
         self.cfg = stereo
         crop = VolumeCrop.from_config(volume, stereo.below_volume_m)
         bias = (stereo.disparity_offset_px, stereo.disparity_edge_px)
-        self.reprojector = Reprojector(crop, stereo.min_points_depth_m, stereo.decimation, bias)
+        ramps = None
+        if stereo.ramp_step_px > 0.0:
+            ramps = RampFilter(stereo.ramp_step_px, stereo.ramp_reach_px, stereo.ramp_width_px, stereo.ramp_margin_px,
+                               stereo.ramp_flat_share)
+        self.reprojector = Reprojector(crop, stereo.min_points_depth_m, stereo.decimation, bias, ramps)
         self._matchers: dict[int, MultiResolutionMatcher] = {}
         self.last_degenerate = False
         self.last_timings_ms: dict[str, float] = {}

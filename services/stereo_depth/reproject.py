@@ -17,6 +17,7 @@ import numpy.typing as npt
 
 from common.config import VolumeConfig
 from common.messages import Calibration
+from services.stereo_depth.ramps import RampFilter
 from services.stereo_depth.sgbm import DisparityMap
 
 Points = npt.NDArray[np.float32]
@@ -48,20 +49,29 @@ class Reprojector:
     """Keeps the per-pixel rays of the last calibration seen (a rig rarely changes mid-run)."""
 
     def __init__(
-        self, crop: VolumeCrop, min_depth_m: float, decimation: int = 1, bias: tuple[float, float] = (0.0, 0.0)
+        self,
+        crop: VolumeCrop,
+        min_depth_m: float,
+        decimation: int = 1,
+        bias: tuple[float, float] = (0.0, 0.0),
+        ramps: RampFilter | None = None,
     ) -> None:
         self.crop = crop
         self.min_depth_m = min_depth_m
         self.step = max(1, int(decimation))
         self.bias_px = bias  # (offset, edge): see ``_corrected``
+        self.ramps = ramps  # pixels between two surfaces left out (services/stereo_depth/ramps.py)
         self._key: tuple[float, ...] | None = None
         self._rays: Rays = np.zeros((3, 0, 0), np.float32)
 
     def points(
         self, disparity: DisparityMap, image: npt.NDArray[np.uint8], calib: Calibration
     ) -> tuple[Points, Colors]:
-        """Points (vehicle frame, float32) and RGB colours of every ``decimation``-th pixel in the volume."""
+        """Points (vehicle frame, float32) and RGB colours of every ``decimation``-th pixel in the volume; ramp
+        pixels between two surfaces left out."""
         step = self.step
+        if self.ramps is not None:
+            disparity = self.ramps.apply(disparity)
         disp = disparity[::step, ::step]
         depth = self._depth(disp, calib)
         rays = self._rays_for(calib, disp.shape)

@@ -1,0 +1,105 @@
+"""Ramp pixels across a depth step (services/stereo_depth/ramps.py): hand-made rows, the cloud, a rendered frame."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from common.config import Config, load_config
+from common.errors import ConfigError
+from common.geometry import camera_to_vehicle
+from common.messages import Calibration, StereoFrame
+from common.scenarios.catalogue import build
+from common.scenarios.render import Renderer, Rig
+from common.scenarios.simulate import FRAME_RATE_HZ
+from services.stereo_depth import StereoDepth
+from services.stereo_depth.ramps import RampFilter
+from services.stereo_depth.reproject import Reprojector, VolumeCrop
+
+
+def _row(*runs: tuple[float, int]) -> np.ndarray:
+    """One image row (1 x N float32) made of runs of (disparity, columns)."""
+    return np.concatenate([np.full(n, d, np.float32) for d, n in runs])[None, :]
+
+
+def _marks(mask: np.ndarray) -> str:
+    return "".join("x" if m else "." for m in mask[0])
+
+
+def test_pixels_between_two_plateaus_are_dropped_and_both_surfaces_kept() -> None:
+    """A pole at 12 px before a wall at 10 px, with the matcher's three in-between columns."""
+    row = np.concatenate([_row((12.0, 12)), np.array([[11.5, 11.0, 10.5]], np.float32), _row((10.0, 12))], axis=1)
+    assert _marks(RampFilter().mask(row)) == "." * 12 + "xxx" + "." * 12
+    # a pixel within the margin of a plateau belongs to that surface
+    row[0, 12] = 11.9
+    assert _marks(RampFilter().mask(row)) == "." * 13 + "xx" + "." * 12
+
+
+def test_a_surface_seen_at_a_slant_is_kept() -> None:
+    """A wall 3 m beside a 0.4 m baseline rig: 0.13 px per column, 1.3 px between the plateaus."""
+    slope = (20.0 + 0.13 * np.arange(60, dtype=np.float32))[None, :]
+    assert not RampFilter().mask(slope).any()
+    assert RampFilter(flat_share=1.0).mask(slope)[0, 10:-10].all()  # what the flatness test is for
+
+
+def test_a_step_smaller_than_the_limit_and_noisy_plateaus() -> None:
+    assert not RampFilter().mask(_row((10.6, 12), (10.3, 2), (10.0, 12))).any()  # 0.6 px: one slanted surface
+    rng = np.random.default_rng(3)
+    row = _row((12.0, 20), (11.0, 2), (10.0, 20)) + rng.normal(0.0, 0.02, (1, 42)).astype(np.float32)
+    assert _marks(RampFilter().mask(row)) == "." * 20 + "xx" + "." * 20
+
+
+def test_missing_disparities_never_make_a_step() -> None:
+    row = _row((12.0, 12), (11.0, 2), (np.nan, 12))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no all-NaN mean warnings either
+        assert not RampFilter().mask(row).any()
+        assert not RampFilter().mask(np.full((4, 6), 11.0, np.float32)).any()  # narrower than both plateaus
+    out = RampFilter().apply(_row((12.0, 12), (11.0, 2), (10.0, 12)))
+    assert np.isnan(out[0, 12:14]).all() and np.isfinite(out[0, :12]).all() and np.isfinite(out[0, 14:]).all()
+
+
+@pytest.mark.parametrize("setting", ["ramp_reach_px=0", "ramp_width_px=0", "ramp_margin_px=-0.1"])
+def test_bad_ramp_settings_are_refused(setting: str) -> None:
+    with pytest.raises(ConfigError):
+        StereoDepth.from_config(load_config(sets=["stereo.ramp_step_px=1.0", f"stereo.{setting}"]))
+
+
+def test_the_cloud_leaves_out_ramp_points_but_keeps_both_surfaces() -> None:
+    """Reprojected by hand: the ramp columns' points lie between the two surfaces and are gone."""
+    cfg = Config()
+    fx, baseline = 600.0, 0.4
+    disparity = np.tile(_row((24.0, 40), (22.0, 1), (20.0, 1), (18.0, 1), (16.0, 40)), (60, 1))
+    frame_calib = Calibration(
+        fx=fx, fy=fx, cx=41.5, cy=30.0, baseline=baseline, width=83, height=60, cam_to_vehicle=camera_to_vehicle(1.5)
+    )
+    image = np.zeros((60, 83, 3), np.uint8)
+    crop = VolumeCrop.from_config(cfg.volume, 10.0)
+    plain = Reprojector(crop, 0.5).points(disparity, image, frame_calib)[0]
+    ramps = Reprojector(crop, 0.5, ramps=RampFilter()).points(disparity, image, frame_calib)[0]
+    near, far = fx * baseline / 24.0, fx * baseline / 16.0  # 10 m and 15 m
+    between = (plain[:, 0] > near + 0.1) & (plain[:, 0] < far - 0.1)
+    assert between.sum() == 3 * 60
+    assert len(ramps) == len(plain) - 3 * 60
+    assert not ((ramps[:, 0] > near + 0.1) & (ramps[:, 0] < far - 0.1)).any()
+
+
+def test_on_a_rendered_street_the_dropped_pixels_are_mostly_the_matchers_misplaced_ones() -> None:
+    """Synthetic urban, seed 3, frame 12 (poles before kiosks and walls): the published disparity is untouched,
+    and the pixels left out of the cloud are far more often over 1 px wrong than pixels are on average."""
+    rig = Rig()
+    rendered = Renderer(build("urban", 3), rig).render(12 / FRAME_RATE_HZ, np.random.default_rng([3, 12]))
+    frame = StereoFrame(frame_id=12, stamp_ns=0, left=rendered.left, right=rendered.right, calib=rig.calibration())
+    plain_cloud, plain = StereoDepth.from_config(load_config()).process(frame)
+    cloud, disp = StereoDepth.from_config(load_config(sets=["stereo.ramp_step_px=1.0"])).process(frame)
+    assert np.array_equal(disp.disparity, plain.disparity, equal_nan=True)
+    estimate, truth = np.asarray(disp.disparity), rendered.disparity
+    dropped = RampFilter().mask(estimate)
+    both = np.isfinite(estimate) & np.isfinite(truth)
+    wrong = both & (np.abs(estimate - truth) > 1.0)
+    assert 0.002 * both.sum() < dropped.sum() < 0.05 * both.sum()
+    share_dropped = (dropped & wrong).sum() / (dropped & both).sum()
+    assert share_dropped > 5 * wrong.sum() / both.sum()
+    assert len(cloud.points) < len(plain_cloud.points)
