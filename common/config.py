@@ -112,6 +112,8 @@ class OdometryConfig:
     bucket_matches: int = 16
     subpixel_window: int = 11  # Lucas-Kanade refinement window (pixels)
     subpixel_stereo: bool = True  # LK-refine disparities too (off: integer disparities, 0.6 % less scale on KITTI)
+    warp_temporal: bool = True  # refine temporal matches with windows warped by the expected motion (road looming)
+    warp_ground_m: float = 0.3  # points this near the road are warped as road, others as facing the camera
     disparity_offset_px: float = 0.0  # added to every disparity: a rig's bias measured against lidar (KITTI: 0.16)
     disparity_edge_px: float = 0.0  # plus this times ((u - cx) / fx)^2, towards the sides (KITTI: 1.3; docs/results)
     usable_width: float = 1.0  # share of the image width, centred on cx, whose matches estimate motion

@@ -23,6 +23,7 @@ from common.messages import Calibration, EgoMotion, StereoFrame, VehicleMotion
 from services.odometry.circular_matching import close_circle, match_stereo, match_temporal
 from services.odometry.features import FeatureDetector, Features, strongest_per_cell, to_gray
 from services.odometry.ins import SensorNoise, fuse_step, sensor_covariance, sensor_step
+from services.odometry.looming import plane_jacobians
 from services.odometry.motion import MotionEstimate, Rig, estimate_motion, project, triangulate
 from services.odometry.subpixel import refine_circle
 
@@ -108,6 +109,7 @@ class StereoOdometry:
         self.sensors: VehicleMotion | None = None  # this frame's INS sample, when fusing
         self.anchor_stamp_ns = 0  # when the anchor was seen
         self.pose_stamp_ns = 0  # when the last published pose was
+        self.cam_to_vehicle = np.eye(4)  # this frame's rig on the vehicle: where the road is
 
     @classmethod
     def from_config(cls, cfg: Config, initial_epoch: int = 0) -> StereoOdometry:
@@ -119,6 +121,7 @@ class StereoOdometry:
         ``vehicle`` is the INS sample of the same frame; it is used only with ``fuse_ins`` on.
         """
         rig = rig_of(frame.calib)
+        self.cam_to_vehicle = np.asarray(frame.calib.cam_to_vehicle, dtype=np.float64)
         self.sensors = vehicle if self.cfg.fuse_ins else None
         view = self.observe(frame)
         if self.anchor is not None and self.anchor.left_gray.shape != view.left_gray.shape:
@@ -182,7 +185,7 @@ class StereoOdometry:
         quads = self.circle(previous, current, rig, prior, radius)
         if len(quads) < self.cfg.min_inliers:
             return None
-        prev_obs, cur_obs = self.refine(previous, current, quads)
+        prev_obs, cur_obs = self.refine(previous, current, quads, rig, prior)
         correct_disparity(prev_obs, rig, self.cfg.disparity_offset_px, self.cfg.disparity_edge_px)
         correct_disparity(cur_obs, rig, self.cfg.disparity_offset_px, self.cfg.disparity_edge_px)
         lo, hi = self.cfg.min_disparity, self.cfg.max_disparity
@@ -220,8 +223,14 @@ class StereoOdometry:
         _, rc_to_rp = match_temporal(previous.right, pred_r, current.right, radius)
         return close_circle(current.left_to_right, rc_to_rp, previous.right_to_left, lp_to_lc)
 
-    def refine(self, previous: StereoView, current: StereoView, quads: npt.NDArray[np.intp]) -> tuple[F64, F64]:
-        """Sub-pixel observations of the bucketed circle matches: previous and current, N x 4."""
+    def refine(
+        self, previous: StereoView, current: StereoView, quads: npt.NDArray[np.intp], rig: Rig, prior: F64
+    ) -> tuple[F64, F64]:
+        """Sub-pixel observations of the bucketed circle matches: previous and current, N x 4.
+
+        With ``warp_temporal`` each previous-left window is first mapped as the expected motion
+        ``prior`` maps its surface (services/odometry/looming.py).
+        """
         keep = strongest_per_cell(
             previous.left.xy[quads[:, 3]],
             previous.left.response[quads[:, 3]],
@@ -230,6 +239,11 @@ class StereoOdometry:
             len(quads),
         )
         q = quads[keep]
+        warps = None
+        if self.cfg.warp_temporal:
+            warps = plane_jacobians(previous.left.xy[q[:, 3]].astype(np.float64),
+                                    previous.right.xy[q[:, 2]].astype(np.float64), prior, rig,
+                                    self.cam_to_vehicle, self.cfg.warp_ground_m)  # fmt: skip
         prev_obs, cur_obs, ok = refine_circle(
             (previous.left_gray, previous.right_gray, current.left_gray, current.right_gray),
             (
@@ -241,6 +255,7 @@ class StereoOdometry:
             self.cfg.subpixel_window,
             2.0,
             self.cfg.subpixel_stereo,
+            warps,
         )
         tol = self.cfg.row_tolerance_px
         ok &= (np.abs(prev_obs[:, 1] - prev_obs[:, 3]) <= tol) & (np.abs(cur_obs[:, 1] - cur_obs[:, 3]) <= tol)

@@ -13,6 +13,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from services.odometry.looming import track_warped
+
 F32 = npt.NDArray[np.float32]
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
@@ -52,16 +54,21 @@ def refine_circle(
     window: int,
     max_shift: float,
     stereo: bool = True,
+    warps: npt.NDArray[np.float64] | None = None,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
     """Previous and current observations (u_l, v_l, u_r, v_r), N x 4 each, and a validity mask.
 
     ``images`` and ``xy`` are ordered (previous-left, previous-right, last-left, last-right).
     Without ``stereo`` the right-image positions stay where the matched corners were detected
-    (shifted by the left image's refinement in the current frame).
+    (shifted by the left image's refinement in the current frame). With ``warps`` (N x 2 x 2) the
+    temporal leg maps each previous window by its warp first (``looming.track_warped``).
     """
     prev_l, prev_r, cur_l, cur_r = images
     lp, rp, lc, rc = xy
-    lc_ref, ok_lc = track(prev_l, cur_l, lp, lc, window, max_shift)
+    if warps is None:
+        lc_ref, ok_lc = track(prev_l, cur_l, lp, lc, window, max_shift)
+    else:
+        lc_ref, ok_lc = track_warped(prev_l, cur_l, lp, lc, warps, window, max_shift)
     if stereo:
         rp_ref, ok_rp = track(prev_l, prev_r, lp, rp, window, max_shift)
         rc_ref, ok_rc = track(cur_l, cur_r, lc_ref, rc, window, max_shift)
