@@ -61,7 +61,7 @@ def test_missing_disparities_never_make_a_step() -> None:
     assert np.isnan(out[0, 12:14]).all() and np.isfinite(out[0, :12]).all() and np.isfinite(out[0, 14:]).all()
 
 
-@pytest.mark.parametrize("setting", ["ramp_reach_px=0", "ramp_width_px=0", "ramp_margin_px=-0.1"])
+@pytest.mark.parametrize("setting", ["ramp_reach_px=0", "ramp_width_px=0", "ramp_margin_px=-0.1", "ramp_flat_share=-1"])
 def test_bad_ramp_settings_are_refused(setting: str) -> None:
     with pytest.raises(ConfigError):
         StereoDepth.from_config(load_config(sets=["stereo.ramp_step_px=1.0", f"stereo.{setting}"]))

@@ -1,10 +1,10 @@
 """The temporal leg refined with the previous patch warped as the expected motion warps its surface.
 
 Lucas-Kanade as OpenCV runs it moves a square window without deforming it. Between two frames
-the road a few metres ahead grows and shears by 10-20 %: with the true motion, features in the
-bottom third of synthetic urban-s1's image were still 0.7-1.2 px from where they project, against
-0.13 px above the horizon, so the robust refinement weighed the nearest, best-placed points
-least. Here each feature's window is mapped into the current image by the local affine map of
+the road a few metres ahead grows by 10-30 %, and more down the image: with the true motion,
+features in the bottom third of synthetic urban-s1's image were still 0.7-1.0 px from where they
+project, against 0.13 px above the horizon, so the robust refinement weighed the nearest,
+best-placed points least. Here each feature's window is mapped into the current image by the local affine map of
 the plane it lies on under the predicted motion: the road for points within ``ground_m`` of
 it, otherwise a plane facing the camera at the point's depth. Only the translation is then
 solved for. With it those road features sit 0.3 px from their projection, and r_err fell on every
