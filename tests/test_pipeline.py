@@ -18,6 +18,8 @@ import numpy as np
 import pytest
 from conftest import REPO, stereovox_cmd, wait_for
 
+from common.codec import encode
+from common.errors import ConfigError
 from common.messages import Obstacles
 from common.recording import open_recording
 from services.demo import BUNDLED
@@ -71,6 +73,57 @@ def test_process_and_demo_give_identical_obstacles(demo_run: tuple[Path, dict], 
     assert sorted(distributed) == sorted(in_process)
     for frame_id in sorted(in_process):
         assert _obstacle_rows(distributed[frame_id]) == _obstacle_rows(in_process[frame_id]), frame_id
+
+
+@pytest.mark.timeout(450)
+def test_a_demo_run_restarted_at_the_mapper_gives_its_own_obstacles(
+    demo_run: tuple[Path, dict], tmp_path: Path
+) -> None:
+    """The recorder wrote the bus in arrival order; joined again by frame id, the later stages agree."""
+    run_path, _ = demo_run
+    out = tmp_path / "again.mcap"
+    assert process_file(run_path, out, resume_from="voxel_mapper") == FRAMES
+    before, after = open_recording(run_path), open_recording(out)
+    assert after.info()["processed_by"] == "stereovox process --from voxel_mapper"
+    for topic in ("voxel_mapper/clusters", "tracker/obstacles"):
+        assert sorted(after.by_topic(topic)) == list(range(FRAMES)), topic
+    old, new = before.by_topic("tracker/obstacles"), after.by_topic("tracker/obstacles")
+    for frame_id in range(FRAMES):
+        assert _obstacle_rows(new[frame_id]) == _obstacle_rows(old[frame_id]), frame_id
+    assert sorted(after.by_topic("groundtruth/objects")) == sorted(before.by_topic("groundtruth/objects"))
+
+
+@pytest.mark.timeout(450)
+def test_a_run_restarted_at_the_tracker_copies_the_clusters_and_takes_new_settings(
+    demo_run: tuple[Path, dict], tmp_path: Path
+) -> None:
+    run_path, _ = demo_run
+    out = tmp_path / "patient.mcap"
+    frames = 20
+    sets = ["tracker.accept_frames=6"]
+    assert process_file(run_path, out, resume_from="tracker", sets=sets, max_frames=frames) == frames
+    before, after = open_recording(run_path), open_recording(out)
+    assert after.config_dict()["tracker"]["accept_frames"] == 6
+    assert before.config_dict()["tracker"]["accept_frames"] != 6
+    clusters = after.by_topic("voxel_mapper/clusters")
+    assert sorted(clusters) == list(range(frames)), "the clusters of the first 20 frames, and only those"
+    recorded = before.by_topic("voxel_mapper/clusters")
+    for frame_id, msg in clusters.items():
+        assert encode(msg) == encode(recorded[frame_id]), frame_id
+
+    def first_tracked(obstacles: dict[int, Obstacles]) -> int:
+        return min(f for f, m in obstacles.items() if any(o.state == "tracked" for o in m.obstacles))
+
+    assert first_tracked(before.by_topic("tracker/obstacles")) < 5
+    assert first_tracked(after.by_topic("tracker/obstacles")) >= 5  # six frames of acceptance, counted from 0
+
+
+def test_a_restart_names_what_the_recording_lacks(tmp_path: Path) -> None:
+    out = tmp_path / "nothing.mcap"
+    lacks = r"needs voxel_mapper/clusters, odometry/ego; .* has no voxel_mapper/clusters"
+    with pytest.raises(ConfigError, match=lacks):
+        process_file(BUNDLED, out, resume_from="tracker")
+    assert not out.exists()
 
 
 def _demo_until_alive(out: Path) -> tuple[subprocess.Popen[str], dict[str, int]]:
