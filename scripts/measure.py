@@ -9,6 +9,14 @@ uses seeds 1-6). ``--seeds 7,8,9,10`` widens the held-out set; the pooled table 
 scenario's counts over its seeds, since one 40-frame run holds only 5-10 moving objects and two
 seeds differ by more than most changes do. Real data comes from ../shared/data (KITTI raw 0009,
 tracking 0001, odometry 04, Middlebury cones and teddy).
+
+A change to the mapper or the tracker alone is measured in seconds per run by restarting the runs
+of an earlier measurement at that stage (``stereovox process --from``) instead of running stereo
+and odometry again; ``--set`` applies to either kind of run::
+
+    .venv/bin/python scripts/measure.py --out /tmp/base --seeds 1,2,3,4,5,6 --only urban,crossing
+    .venv/bin/python scripts/measure.py --out /tmp/k1 --seeds 1,2,3,4,5,6 --only urban,crossing \\
+        --from tracker --runs /tmp/base --set tracker.moving_sigma_k=1.0
 """
 
 from __future__ import annotations
@@ -27,7 +35,7 @@ sys.path.insert(0, str(REPO))
 from common.datasets import kitti_odometry, kitti_raw, kitti_tracking, middlebury  # noqa: E402
 from common.evaluation.evaluate import evaluate_recording  # noqa: E402
 from common.scenarios.simulate import simulate_to_file  # noqa: E402
-from services.pipeline import process_file  # noqa: E402
+from services.pipeline import RESUMABLE, process_file  # noqa: E402
 
 SHARED = REPO.parent / "shared" / "data"
 SCENARIOS = ("urban", "crossing", "overtake", "hanging", "slope", "lowtexture")
@@ -46,12 +54,29 @@ REAL: dict[str, Callable[[Path], Any]] = {
 }
 
 
-def measure(name: str, make: Callable[[Path], Any], folder: Path) -> dict[str, Any]:
+def measure(
+    name: str,
+    make: Callable[[Path], Any],
+    folder: Path,
+    sets: list[str] | None = None,
+    restart: tuple[str, Path] | None = None,
+) -> dict[str, Any] | None:
+    """Run (or, with ``restart`` = (stage, runs folder), restart that folder's run) and evaluate it.
+
+    None when the run to restart is not in the folder.
+    """
     source, run = folder / f"{name}.mcap", folder / f"{name}_run.mcap"
     started = time.perf_counter()
-    if not source.exists():
-        make(source)
-    process_file(source, run, with_frames=False)
+    if restart is not None:
+        stage, runs = restart
+        if not (runs / f"{name}_run.mcap").exists():
+            print(f"{name}: no {runs / f'{name}_run.mcap'} to restart, left out", file=sys.stderr)
+            return None
+        process_file(runs / f"{name}_run.mcap", run, with_frames=False, sets=sets, resume_from=stage)
+    else:
+        if not source.exists():
+            make(source)
+        process_file(source, run, with_frames=False, sets=sets)
     result = evaluate_recording(run)
     (folder / f"{name}.json").write_text(json.dumps(result, indent=1))
     print(f"{name}: {time.perf_counter() - started:.0f} s", file=sys.stderr, flush=True)
@@ -152,7 +177,15 @@ def main() -> int:
     parser.add_argument("--only", default="", help="comma-separated subset: scenario names and/or real data names")
     parser.add_argument("--frames", type=int, default=40, help="frames per scenario")
     parser.add_argument("--seeds", default="7,8", help="comma-separated scenario seeds (1-6 were tuned on)")
+    parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE")
+    parser.add_argument("--from", dest="restart_from", choices=list(RESUMABLE), help="restart --runs' runs here")
+    parser.add_argument("--runs", type=Path, help="folder of an earlier measurement whose runs --from restarts")
     args = parser.parse_args()
+    if (args.restart_from is None) != (args.runs is None):
+        parser.error("--from and --runs go together")
+    if args.runs is not None and args.runs.resolve() == args.out.resolve():
+        parser.error("--runs must be another folder than --out: the restarted runs would overwrite their inputs")
+    restart = None if args.runs is None else (args.restart_from, args.runs)
     seeds = [int(s) for s in args.seeds.split(",") if s]
     args.out.mkdir(parents=True, exist_ok=True)
     only = {s for s in args.only.split(",") if s}
@@ -161,11 +194,12 @@ def main() -> int:
         for seed in seeds:
             jobs[f"{scenario}-s{seed}"] = lambda out, sc=scenario, sd=seed: simulate_to_file(sc, out, args.frames, sd)
     jobs.update(REAL)
-    results = {
-        name: measure(name, make, args.out)
+    measured = {
+        name: measure(name, make, args.out, args.sets, restart)
         for name, make in jobs.items()
         if not only or any(name.startswith(o) for o in only)
     }
+    results = {name: r for name, r in measured.items() if r is not None}
     tables = (
         f"### Obstacles\n\n{tracking_table(results)}\n\n### Obstacles, each scenario's seeds pooled\n\n"
         f"{pooled_table(results)}\n\n### Odometry and stereo\n\n{geometry_table(results)}\n"

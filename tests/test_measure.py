@@ -3,9 +3,14 @@
 from __future__ import annotations
 
 import importlib.util
+import json
 from pathlib import Path
 from types import ModuleType
 from typing import Any
+
+from common.recording import open_recording
+from services.demo import BUNDLED
+from services.pipeline import process_file
 
 
 def load_measure() -> ModuleType:
@@ -37,3 +42,23 @@ def test_seeds_are_pooled_by_counts_and_speed_by_pairs() -> None:
     assert rows[2] == "| urban | 2 | 50.0 / 5.0 / 45.0 | 1.34 | 1 of 22 |"  # sqrt((9 * 1.0^2 + 1 * 3.0^2) / 10)
     assert rows[3] == "| crossing | 1 | 50.0 / 0.0 / 50.0 | - | 0 of 4 |"
     assert len(rows) == 4
+
+
+def test_runs_of_an_earlier_measurement_are_restarted_with_the_new_settings(tmp_path: Path) -> None:
+    """``--from tracker --runs DIR``: the folder's run goes through the tracker again; no scene is rendered."""
+    measure = load_measure()
+    runs, out = tmp_path / "base", tmp_path / "changed"
+    runs.mkdir()
+    out.mkdir()
+    assert process_file(BUNDLED, runs / "urban-s7_run.mcap", max_frames=4, with_frames=False) == 4
+
+    def render(path: Path) -> None:
+        raise AssertionError(f"a restart rendered {path}")
+
+    result = measure.measure("urban-s7", render, out, ["tracker.accept_frames=3"], ("tracker", runs))
+    assert result is not None and result["frames"] == 4
+    assert json.loads((out / "urban-s7.json").read_text()) == result
+    restarted = open_recording(out / "urban-s7_run.mcap")
+    assert restarted.config_dict()["tracker"]["accept_frames"] == 3
+    assert restarted.info()["processed_by"] == "stereovox process --from tracker"
+    assert measure.measure("urban-s8", render, out, [], ("tracker", runs)) is None  # not in the folder: left out
