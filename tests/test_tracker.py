@@ -18,6 +18,7 @@ from services.tracker import anchor as anchor_module
 from services.tracker.anchor import anchors
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
 from services.tracker.fragments import chained, merge
+from services.tracker.motion_window import speed_bound
 
 EDGE = 0.25
 PERIOD_NS = 100_000_000
@@ -451,6 +452,39 @@ def test_a_walker_coming_closer_inside_a_shrinking_smear_is_called_moving(
         assert all(moving[-4:]) and o.velocity[0] == pytest.approx(-1.5, abs=0.3), (moving, o.velocity)
     else:
         assert not any(moving) and abs(o.velocity[0]) < 0.5, (moving, o.velocity)
+
+
+@pytest.mark.parametrize("narrow_m", [2.0, 0.0])
+def test_a_walker_crossing_inside_a_swinging_smear_is_moving_by_its_bearing(narrow_m: float) -> None:
+    # Smear stretches both narrow objects along the line of sight by 0.6-3.0 m and back, so their
+    # boxes grow and shrink along it; across it they keep their width. The walker crosses at
+    # 1.4 m/s, the post stands still. tracker.narrow_across_m = 0: the whole velocity only.
+    tracker, walker_moving, post_moving = new_tracker(narrow_across_m=narrow_m), [], []
+    for k in range(25):
+        smear, smear_post = 0.6 + 2.4 * abs(np.sin(1.2 * k)), 0.6 + 2.4 * abs(np.sin(1.2 * k + 1.0))
+        walker = cluster(0, (15.0 + smear / 2, -3.0 + 0.14 * k, 0.9), size=(smear, 0.6, 1.8), rgb=(0.2, 0.6, 0.2))
+        post = cluster(1, (15.0 + smear_post / 2, 3.0, 1.5), size=(smear_post, 0.3, 3.0), rgb=(0.3, 0.3, 0.6))
+        by_side = sorted(step(tracker, k, [walker, post]).obstacles, key=lambda o: o.centroid[1])
+        assert len(by_side) == 2, k
+        walker_moving.append(by_side[0].moving)
+        post_moving.append(by_side[1].moving)
+    assert not any(post_moving)
+    if narrow_m > 0:
+        assert walker_moving.index(True) <= 4 and sum(walker_moving) >= 20, walker_moving
+    else:
+        assert walker_moving.index(True) >= 6 and sum(walker_moving) <= 16, walker_moving
+
+
+def test_a_speed_bound_along_a_direction_ignores_the_scatter_across_it() -> None:
+    times = np.tile(np.arange(8) * 0.1, (2, 1))
+    along_y = np.stack([np.array([0.0, 0.5, -0.5, 0.5, -0.5, 0.5, -0.5, 0.0]), 1.4 * times[0]], axis=1)
+    points = np.stack([along_y, along_y])
+    count = np.array([8, 8])
+    both = speed_bound(points, times, count, 0.15, 1.5)
+    across = speed_bound(points, times, count, 0.15, 1.5, direction=np.array([[0.0, 1.0], [1.0, 0.0]]))
+    assert both[0] < 0.7  # x scatters by 0.5 m: not enough to call 1.4 m/s moving (tracker.moving_on_mps)
+    assert across[0] == pytest.approx(1.4 - 1.5 * 0.15 / np.sqrt(0.42), abs=1e-6)  # only the floor's doubt along y
+    assert across[1] < 0.0  # along x the same points say nothing
 
 
 def test_merged_pieces_keep_their_point_counts_voxel_for_voxel() -> None:

@@ -44,6 +44,7 @@ from services.tracker.motion_state import (
     SLIDE_SMOOTHING,
     EgoVelocity,
     Hysteresis,
+    across_sight,
     label,
     slide_speed,
     speed_and_sigma,
@@ -92,6 +93,7 @@ class Tracker:
         fragment_gap: float = -1.0,
         accept_misses: int = 0,
         reshape_m: float = float("inf"),
+        narrow_across_m: float = 0.0,
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -110,6 +112,7 @@ class Tracker:
         self.fragment_gap = fragment_gap
         self.accept_misses = accept_misses
         self.reshape_m = reshape_m
+        self.narrow_across_m = narrow_across_m
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.tracks = TrackTable()
         self.ego = EgoVelocity()
@@ -140,6 +143,7 @@ class Tracker:
             fragment_gap=t.fragment_gap,
             accept_misses=t.accept_misses,
             reshape_m=t.reshape_m,
+            narrow_across_m=t.narrow_across_m,
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
@@ -160,7 +164,7 @@ class Tracker:
         fresh = np.setdiff1d(np.arange(len(obs)), cols)
         self._spawn(obs.take(fresh), r[fresh])
         if trusted:
-            self._label_motion(clusters.voxel_edge)
+            self._label_motion(clusters.voxel_edge, pose[0:2, 3])
         return obstacles_of(self.tracks, self.ego.velocity, clusters, ego)
 
     # ------------------------------------------------------------------ input guards
@@ -376,13 +380,39 @@ class Tracker:
             )
         )
 
-    def _label_motion(self, voxel_edge: float) -> None:
+    def _label_motion(self, voxel_edge: float, eye: NDArray) -> None:
+        """Moving or stationary from lower bounds on the speed (motion_state.label).
+
+        A narrow track's bounds are taken across the line of sight from ``eye`` instead, filter and
+        window alike, where together they say more than the whole velocity's: its bearing is
+        measured, its range is smeared (motion_state.Across; docs/results/tracking.md, "Session 17").
+        """
         t = self.tracks
+        extent = t.bbox_max - t.bbox_min
         speed, sigma = speed_and_sigma(t.x[:, 3:6], t.p[:, 3:6, 3:6])
-        slide = slide_speed(t.bbox_max - t.bbox_min, t.extent_slow, self.frame_period_s, voxel_edge)
+        slide = slide_speed(extent, t.extent_slow, self.frame_period_s, voxel_edge)
         k = self.hysteresis.sigma_k
-        confirm = np.minimum(
-            motion_window.speed_bound(t.window, t.window_t, t.window_n, self.measurement_std, k),
-            motion_window.speed_bound(t.window_far, t.window_t, t.window_n, self.measurement_std, k),
-        )
+        confirm = self._window_bound(k)
+        if self.narrow_across_m > 0.0 and len(t):
+            a = across_sight(
+                t.x[:, 0:2], t.x[:, 3:5], t.p[:, 3:5, 3:5], extent, t.extent_slow, eye, self.frame_period_s, voxel_edge
+            )
+            across_confirm = self._window_bound(k, a.normal)
+            evidence = np.minimum(speed - k * sigma - slide, confirm)
+            across_evidence = np.minimum(a.speed - k * a.sigma - a.slide, across_confirm)
+            use = (a.width < self.narrow_across_m) & (across_evidence > evidence)
+            speed, sigma, slide = (
+                np.where(use, a.speed, speed),
+                np.where(use, a.sigma, sigma),
+                np.where(use, a.slide, slide),
+            )
+            confirm = np.where(use, across_confirm, confirm)
         t.moving = label(t.moving, speed, sigma, slide, t.age, self.hysteresis, confirm)
+
+    def _window_bound(self, k: float, direction: NDArray | None = None) -> NDArray:
+        """The faces' own bound on the speed (motion_window.py): the lower of the near and far ends'."""
+        t = self.tracks
+        return np.minimum(
+            motion_window.speed_bound(t.window, t.window_t, t.window_n, self.measurement_std, k, direction),
+            motion_window.speed_bound(t.window_far, t.window_t, t.window_n, self.measurement_std, k, direction),
+        )

@@ -50,6 +50,11 @@ def speed_and_sigma(velocity: NDArray, velocity_cov: NDArray) -> tuple[NDArray, 
     return speed, np.sqrt(np.maximum(var, 0.0))
 
 
+def _slide_lag(period_s: float) -> float:
+    """Seconds by which the slow extent trails the newest under steady growth."""
+    return period_s * (1.0 - SLIDE_SMOOTHING) / SLIDE_SMOOTHING
+
+
 def slide_speed(extent: NDArray, extent_slow: NDArray, period_s: float, voxel_edge: float) -> NDArray:
     """Horizontal centroid speed (n,) a steadily growing or shrinking box explains on its own.
 
@@ -58,9 +63,55 @@ def slide_speed(extent: NDArray, extent_slow: NDArray, period_s: float, voxel_ed
     flickers by a voxel at its faces from quantisation alone, so one voxel edge of difference per
     axis is not counted as growth.
     """
-    lag = period_s * (1.0 - SLIDE_SMOOTHING) / SLIDE_SMOOTHING
     growth = np.maximum(np.abs(extent - extent_slow)[:, 0:2] - voxel_edge, 0.0)
-    return 0.5 * np.linalg.norm(growth, axis=1) / lag
+    return 0.5 * np.linalg.norm(growth, axis=1) / _slide_lag(period_s)
+
+
+@dataclass(frozen=True)
+class Across:
+    """A track's motion across its line of sight: the part stereo measures by bearing, not by range.
+
+    A narrow object's range is the noisy part of its position: disparity smear stretches it into a
+    fringe along the line of sight whose depth changes with range, and a walker that merges with a
+    neighbour along the ray jumps in range. Its bearing is measured to a few centimetres. A walker
+    crossing the road moves across the line of sight, so the speed across it bounds the speed from
+    below more sharply than the whole velocity does, whose along-sight part carries the smear.
+    """
+
+    normal: NDArray  # (n, 2) horizontal unit vectors across the line of sight
+    width: NDArray  # (n,) the box's extent across it (m)
+    speed: NDArray  # (n,) the velocity's component across it, in magnitude
+    sigma: NDArray  # (n,) that component's standard deviation
+    slide: NDArray  # (n,) what a steadily widening or narrowing box explains (as slide_speed, across only)
+
+
+def across_sight(
+    position: NDArray,
+    velocity: NDArray,
+    velocity_cov: NDArray,
+    extent: NDArray,
+    extent_slow: NDArray,
+    eye: NDArray,
+    period_s: float,
+    voxel_edge: float,
+) -> Across:
+    """Horizontal ``position`` (n, 2) and ``velocity`` (n, 2) seen from ``eye`` (2,), all in the world."""
+    ray = position - eye
+    ray = ray / np.maximum(np.linalg.norm(ray, axis=1), 1e-9)[:, None]
+    normal = np.column_stack([-ray[:, 1], ray[:, 0]])
+
+    def width(box: NDArray) -> NDArray:
+        return np.abs(box[:, 0] * normal[:, 0]) + np.abs(box[:, 1] * normal[:, 1])
+
+    now, slow = width(extent), width(extent_slow)
+    var = np.einsum("ni,nij,nj->n", normal, velocity_cov, normal)
+    return Across(
+        normal=normal,
+        width=now,
+        speed=np.abs((velocity * normal).sum(axis=1)),
+        sigma=np.sqrt(np.maximum(var, 0.0)),
+        slide=0.5 * np.maximum(np.abs(now - slow) - voxel_edge, 0.0) / _slide_lag(period_s),
+    )
 
 
 def label(

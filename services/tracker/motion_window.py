@@ -61,12 +61,17 @@ def shift(points: NDArray, rows: NDArray, offset: NDArray) -> None:
     points[rows] += offset[:, None, 0:2]
 
 
-def speed_bound(points: NDArray, times: NDArray, count: NDArray, floor_std: float, k: float) -> NDArray:
+def speed_bound(
+    points: NDArray, times: NDArray, count: NDArray, floor_std: float, k: float, direction: NDArray | None = None
+) -> NDArray:
     """(n,) horizontal speed of the least-squares line minus ``k`` standard errors; -inf when too few.
 
     The scatter about the line is never taken below ``floor_std`` (m), so three faces that happen
-    to line up do not claim a precise speed.
+    to line up do not claim a precise speed. With ``direction`` (n, 2 unit vectors) only the
+    motion along it counts, and only the scatter along it: a bound on the speed all the same.
     """
+    if direction is not None:
+        points = np.einsum("nsi,ni->ns", points, direction)[:, :, None]
     n, size = count.shape[0], points.shape[1]
     out = np.full(n, -np.inf)
     valid = np.arange(size)[None, :] >= (size - count)[:, None]  # the newest ``count`` entries
@@ -82,10 +87,11 @@ def speed_bound(points: NDArray, times: NDArray, count: NDArray, floor_std: floa
     sxx = np.maximum((dt**2).sum(axis=1), 1e-12)
     p_mean = (w[:, :, None] * p).sum(axis=1) / m[:, None]
     dp = (p - p_mean[:, None, :]) * w[:, :, None]
-    slope = (dt[:, :, None] * dp).sum(axis=1) / sxx[:, None]  # (k, 2)
+    slope = (dt[:, :, None] * dp).sum(axis=1) / sxx[:, None]  # (k, axes)
     residual = dp - dt[:, :, None] * slope[:, None, :]
     rss = (residual**2 * w[:, :, None]).sum(axis=(1, 2))
-    scatter = np.maximum(rss / np.maximum(2.0 * (m - 2.0), 1.0), floor_std**2)  # per axis
+    axes = points.shape[2]
+    scatter = np.maximum(rss / np.maximum(axes * (m - 2.0), 1.0), floor_std**2)  # per axis
     speed = np.linalg.norm(slope, axis=1)
     out[ok] = speed - k * np.sqrt(scatter / sxx)
     return out
