@@ -33,6 +33,7 @@ class BusConfig:
     user: str = ""  # usrpwd authentication (client side)
     password: str = ""
     zenoh_config: str = ""  # a full Zenoh JSON5 file, applied before the fields above
+    close_linger_s: float = 0.5  # a stage leaves the bus no sooner than this after its last put (in flight)
 
 
 @dataclass

@@ -28,7 +28,7 @@ from typing import Any
 
 import zenoh
 
-from common.bus import Publisher, declare_alive, subscribe
+from common.bus import Publisher, declare_alive, linger, subscribe
 from common.config import Config
 from common.messages import Message, key_for, now_ns, stamp_output
 from services.health import HealthReporter, StageHealth
@@ -193,6 +193,7 @@ def run_stage(
                 loop.step()
     finally:
         token.undeclare()
+        linger(loop.pubs, cfg.bus.close_linger_s)
         loop.close()
         health_pub.close()
     h = loop.health

@@ -5,13 +5,14 @@ from __future__ import annotations
 import re
 import sys
 import threading
+import time
 from collections.abc import Iterator
 
 import pytest
 import zenoh
 from conftest import Processes, free_port, stereovox_cmd, wait_for
 
-from common.bus import FifoSubscriber, LatestSubscriber, Publisher, declare_alive, open_session, subscribe
+from common.bus import FifoSubscriber, LatestSubscriber, Publisher, declare_alive, linger, open_session, subscribe
 from common.config import BusConfig
 from common.messages import EgoMotion, Health, key_for
 from services.bus_bench import measure
@@ -46,6 +47,17 @@ def test_newest_keeps_the_last_message_and_counts_the_replaced(pair: tuple[zenoh
     item = sub.recv(1.0)
     assert item is not None and item.msg.frame_id == 49
     assert sub.dropped == 49 and sub.recv(0.05) is None
+
+
+def test_a_publisher_lingers_only_after_a_recent_put(pair: tuple[zenoh.Session, zenoh.Session, int]) -> None:
+    router, _, _ = pair
+    quiet, busy = Publisher(router, key_for("odometry/ego")), Publisher(router, key_for("tracker/obstacles"))
+    assert linger([quiet, busy], 0.5) == 0.0  # nothing was ever put
+    busy.put(ego(0))
+    started = time.monotonic()
+    waited = linger([quiet, busy], 0.5)
+    assert 0.3 < waited <= 0.5 and time.monotonic() - started >= waited
+    assert linger([quiet, busy], 0.5) == 0.0  # the last put is now half a second old
 
 
 @pytest.mark.timeout(60)
