@@ -2,26 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
 import math
-from pathlib import Path
-from types import ModuleType
 
 import numpy as np
 import pytest
+from conftest import load_script
 
 from common.evaluation.odometry import odometry_errors
 from common.geometry import make_pose
-
-
-def load_witness() -> ModuleType:
-    path = Path(__file__).resolve().parents[1] / "scripts" / "lidar_witness.py"
-    spec = importlib.util.spec_from_file_location("lidar_witness", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def curved_path(frames: int = 1101, step_m: float = 0.05, turn_deg: float = 0.001) -> list[np.ndarray]:
@@ -29,7 +18,7 @@ def curved_path(frames: int = 1101, step_m: float = 0.05, turn_deg: float = 0.00
 
     Steps are short so that a segment ends within 0.5 % of its nominal length, which t_err divides by.
     """
-    witness = load_witness()
+    witness = load_script("lidar_witness")
     step = make_pose(witness.yaw_about_y(turn_deg), np.array([0.0, 0.0, step_m]))
     poses = [np.eye(4)]
     for _ in range(frames - 1):
@@ -38,7 +27,7 @@ def curved_path(frames: int = 1101, step_m: float = 0.05, turn_deg: float = 0.00
 
 
 def test_travel_reads_direction_length_and_turn_to_the_right_as_positive() -> None:
-    witness = load_witness()
+    witness = load_script("lidar_witness")
     motion = make_pose(witness.yaw_about_y(2.0), np.array([0.5, 0.1, 10.0]))
     direction, length, turn = witness.travel(motion)
     assert direction == pytest.approx(math.degrees(math.atan2(0.5, 10.0)))
@@ -48,7 +37,7 @@ def test_travel_reads_direction_length_and_turn_to_the_right_as_positive() -> No
 
 def test_a_path_turned_to_travel_elsewhere_scores_the_chord_of_that_angle() -> None:
     """Every segment's end lands 2 sin(phi / 2) of its length off: the whole of t_err, no rotation error."""
-    witness = load_witness()
+    witness = load_script("lidar_witness")
     truth = curved_path()
     same = witness.turned_travel(truth, [0.0] * (len(truth) - 1))
     assert max(float(np.abs(a - b).max()) for a, b in zip(same, truth, strict=True)) < 1e-9

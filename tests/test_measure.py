@@ -2,24 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
-from types import ModuleType
 from typing import Any
+
+from conftest import load_script
 
 from common.recording import open_recording
 from services.demo import BUNDLED
 from services.pipeline import process_file
-
-
-def load_measure() -> ModuleType:
-    path = Path(__file__).resolve().parents[1] / "scripts" / "measure.py"
-    spec = importlib.util.spec_from_file_location("measure", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def run(tp: int, fp: int, fn: int, rmse: float | None, pairs: int, parked: int, tracks: int) -> dict[str, Any]:
@@ -31,7 +22,7 @@ def run(tp: int, fp: int, fn: int, rmse: float | None, pairs: int, parked: int, 
 
 
 def test_seeds_are_pooled_by_counts_and_speed_by_pairs() -> None:
-    measure = load_measure()
+    measure = load_script("measure")
     results = {
         "urban-s7": run(9, 0, 1, 1.0, 9, 1, 10),  # 90 % alone
         "urban-s9": run(1, 1, 8, 3.0, 1, 0, 12),  # 10 % alone: a mean of shares would say 50 %
@@ -46,7 +37,7 @@ def test_seeds_are_pooled_by_counts_and_speed_by_pairs() -> None:
 
 def test_runs_of_an_earlier_measurement_are_restarted_with_the_new_settings(tmp_path: Path) -> None:
     """``--from tracker --runs DIR``: the folder's run goes through the tracker again; no scene is rendered."""
-    measure = load_measure()
+    measure = load_script("measure")
     runs, out = tmp_path / "base", tmp_path / "changed"
     runs.mkdir()
     out.mkdir()
