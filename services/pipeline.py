@@ -166,27 +166,32 @@ def _last_frame(reader: RecordingReader, topic: str, max_frames: int | None) -> 
     return ids[max_frames - 1], max_frames
 
 
-def resume_recording(
-    reader: RecordingReader, cfg: Config, stage: str, max_frames: int | None = None
-) -> Iterator[tuple[str, Message, bool]]:
-    """Yield ``(key, message, made)``: the run's messages copied, and ``stage`` onwards made again.
-
-    A frame goes through once every topic ``stage`` needs has arrived with its id, whatever the
-    order the recorder wrote them in; one that never completes (a message lost on the bus) is
-    skipped and named in the log. The new outputs take the key of the input they came from, so a
-    run recorded under another vehicle name stays under it.
-    """
+def _resume_inputs(reader: RecordingReader, stage: str) -> tuple[str, ...]:
+    """The recorded topics ``stage`` needs; a clear error when it is no stage to restart at or one is absent."""
     if stage not in RESUMABLE:
         raise ConfigError(f"--from {stage!r}: a run restarts at one of {', '.join(RESUMABLE)}")
     needs = RESUMABLE[stage]
     missing = [topic for topic in needs if not reader.has_topic(topic)]
     if missing:
         raise ConfigError(f"--from {stage} needs {', '.join(needs)}; {reader.path} has no {', '.join(missing)}")
+    return needs
+
+
+def resume_recording(
+    reader: RecordingReader, cfg: Config, stage: str, last: int | None = None
+) -> Iterator[tuple[str, Message, bool]]:
+    """Yield ``(key, message, made)``: the run's messages copied, and ``stage`` onwards made again.
+
+    A frame goes through once every topic ``stage`` needs has arrived with its id, whatever the
+    order the recorder wrote them in; one that never completes (a message lost on the bus) is
+    skipped and named in the log. The new outputs take the key of the input they came from, so a
+    run recorded under another vehicle name stays under it. ``last``: no message of a later frame.
+    """
+    needs = _resume_inputs(reader, stage)
     later = list(RESUMABLE)[list(RESUMABLE).index(stage) :]
     remade = {PRODUCES[s] for s in later}
     mapper = VoxelMapper.from_config(cfg) if "voxel_mapper" in later else None
     tracker = Tracker.from_config(cfg)
-    last, _ = _last_frame(reader, needs[0], max_frames)
     pending: dict[int, dict[str, tuple[str, Message]]] = defaultdict(dict)
     for key, msg in reader.messages():
         topic = topic_of(key)
@@ -275,11 +280,11 @@ def process_file(
 def _resume_file(
     reader: RecordingReader, out: Path, cfg: Config, stage: str, max_frames: int | None, with_frames: bool
 ) -> int:
-    _, total = _last_frame(reader, RESUMABLE.get(stage, ("",))[0], max_frames)
+    last, total = _last_frame(reader, _resume_inputs(reader, stage)[0], max_frames)
     processed = 0
     with RecordingWriter(out, compression=cfg.recorder.compression, atomic=True) as writer:
         writer.describe(cfg.to_dict(), {**reader.info(), "processed_by": f"stereovox process --from {stage}"})
-        items = resume_recording(reader, cfg, stage, max_frames)
+        items = resume_recording(reader, cfg, stage, last)
         for key, msg, made in progress(
             items, total, f"{stage}+ {reader.path.name}", counts=lambda item: item[2] and isinstance(item[1], Obstacles)
         ):
