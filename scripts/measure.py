@@ -69,10 +69,11 @@ def measure(
     started = time.perf_counter()
     if restart is not None:
         stage, runs = restart
-        if not (runs / f"{name}_run.mcap").exists():
-            print(f"{name}: no {runs / f'{name}_run.mcap'} to restart, left out", file=sys.stderr)
+        earlier = runs / f"{name}_run.mcap"
+        if not earlier.exists():
+            print(f"{name}: no {earlier} to restart, left out", file=sys.stderr)
             return None
-        process_file(runs / f"{name}_run.mcap", run, with_frames=False, sets=sets, resume_from=stage)
+        process_file(earlier, run, with_frames=False, sets=sets, resume_from=stage)
     else:
         if not source.exists():
             make(source)
