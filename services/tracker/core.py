@@ -38,7 +38,7 @@ from common.config import Config, VolumeConfig
 from common.messages import Cluster, Clusters, EgoMotion, Obstacles
 from services.tracker import kalman, motion_window
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
-from services.tracker.fragments import claims, gather
+from services.tracker.fragments import claims, gather, stand_apart
 from services.tracker.measurement import cut_covariance, stereo_covariance, visibility_covariance
 from services.tracker.motion_state import (
     SLIDE_SMOOTHING,
@@ -91,6 +91,7 @@ class Tracker:
         jump_nis: float = float("inf"),
         fragment_margin: float = -1.0,
         fragment_gap: float = -1.0,
+        fragment_standing_m: float = -1.0,
         accept_misses: int = 0,
         reshape_m: float = float("inf"),
         narrow_across_m: float = 0.0,
@@ -110,6 +111,7 @@ class Tracker:
         self.jump_nis = jump_nis
         self.fragment_margin = fragment_margin
         self.fragment_gap = fragment_gap
+        self.fragment_standing_m = fragment_standing_m
         self.accept_misses = accept_misses
         self.reshape_m = reshape_m
         self.narrow_across_m = narrow_across_m
@@ -141,6 +143,7 @@ class Tracker:
             jump_nis=t.jump_nis,
             fragment_margin=t.fragment_margin,
             fragment_gap=t.fragment_gap,
+            fragment_standing_m=t.fragment_standing_m,
             accept_misses=t.accept_misses,
             reshape_m=t.reshape_m,
             narrow_across_m=t.narrow_across_m,
@@ -155,12 +158,14 @@ class Tracker:
         trusted = self._observe_ego(ego)
         pose = self._placement_pose(clusters, ego)
         self._predict(dt)
-        obs = self._observe(self._gather(clusters), pose, clusters.voxel_edge)
+        pieces = self._gather(clusters)
+        obs = self._observe(pieces, pose, clusters.voxel_edge)
         r = self._cluster_cov(obs, pose, clusters.voxel_edge)
         rows, cols = self._associate(obs, r)
         if trusted:
             self._correct(rows, obs.take(cols), r[cols])
-        self._advance_queues(rows, elapsed)
+        piece_of = {int(i): pieces[int(obs.index[j])] for i, j in zip(rows, cols, strict=True)}
+        self._advance_queues(rows, elapsed, piece_of)
         fresh = np.setdiff1d(np.arange(len(obs)), cols)
         self._spawn(obs.take(fresh), r[fresh])
         if trusted:
@@ -218,7 +223,8 @@ class Tracker:
             return clusters.clusters
         shift = (t.x[known, 0:3] + t.offset[known]) - t.centroid[known]
         lo, hi = t.bbox_min[known] + shift, t.bbox_max[known] + shift
-        return gather(clusters.clusters, lo, hi, self.fragment_margin, clusters.voxel_edge, self.fragment_gap)
+        margin, edge = self.fragment_margin, clusters.voxel_edge
+        return gather(clusters.clusters, lo, hi, margin, edge, self.fragment_gap, self.fragment_standing_m)
 
     def _observe(self, clusters: list[Cluster], pose: NDArray, edge: float) -> Observations:
         obs, dropped = observe(clusters, pose, edge)
@@ -315,19 +321,20 @@ class Tracker:
         motion_window.shift(t.window_far, rows_turned, now - before)
         t.side[rows_turned] = obs.side[turned]
 
-    def _advance_queues(self, rows: NDArray, elapsed: int) -> None:
+    def _advance_queues(self, rows: NDArray, elapsed: int, piece_of: dict[int, Cluster]) -> None:
         seen = np.zeros(len(self.tracks), dtype=bool)
         seen[rows] = True
-        held = self._inside_known(seen)
+        held = self._inside_known(seen, piece_of)
         keep = advance(self.tracks, seen, elapsed, self.accept_frames, self.ghost_frames, held, self.accept_misses)
         self.counters["tracks_dropped"] += int((~keep).sum())
         self.tracks.keep(keep)
 
-    def _inside_known(self, seen: NDArray) -> NDArray:
+    def _inside_known(self, seen: NDArray, piece_of: dict[int, Cluster]) -> NDArray:
         """Acceptance tracks whose centroid lies in the box of a tracked object seen this frame.
 
         Such a track is a piece the merge of fragments.py missed (it was outside the predicted
-        box); promoted, it would be a second obstacle on one object, moving with it.
+        box); promoted, it would be a second obstacle on one object, moving with it. Unless the
+        two clusters (``piece_of``, by track row) stand apart as fragments.stand_apart judges.
         """
         t = self.tracks
         held = np.zeros(len(t), dtype=bool)
@@ -336,6 +343,11 @@ class Tracker:
         if self.fragment_margin < 0.0 or not young.any() or not known.any():
             return held
         inside = claims(t.centroid[young], t.bbox_min[known], t.bbox_max[known], self.fragment_margin)
+        known_rows, young_rows = np.flatnonzero(known), np.flatnonzero(young)
+        for k, y in zip(*np.nonzero(inside), strict=True):
+            whole, piece = piece_of.get(int(known_rows[k])), piece_of.get(int(young_rows[y]))
+            if whole is not None and piece is not None and stand_apart(whole, piece, self.fragment_standing_m):
+                inside[k, y] = False
         held[young] = inside.any(axis=0)
         return held
 

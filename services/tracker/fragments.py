@@ -24,6 +24,15 @@ urban, crossing, overtake and slope seeds 1-2: moving TP on urban-s2 68.8 -> 79.
 runs within a point and a half; gaps of 0.25-0.5 m did about as well there but cost KITTI
 tracking 0001 a tenth of its stationary recall, 1 m lost urban-s2's gain
 (docs/results/tracking.md, "Session 12").
+
+Boxes still touch where voxels do not: the voxel map joins a facade and a pole 2 m in front of
+it into one cluster, and a walker passing between them lies inside that box, touching it, frame
+after frame (synthetic urban: 33 walker- and cyclist-frames of ten runs with a cluster of their
+own, centred on them, gathered into a neighbour's track). So two pieces that both stand on the
+group's floor must also touch column to column seen from above (``standing_links``), and an
+acceptance track is held back inside a tracked box only if its cluster would have been gathered
+(``stand_apart``). Moving recall, tracker replays: tuning seeds 1-6 69.7 -> 71.9 %, held-out
+seeds 7-10 68.5 -> 71.4 % (docs/results/tracking.md, "Session 18").
 """
 
 from __future__ import annotations
@@ -80,16 +89,91 @@ def merge(pieces: list[Cluster], edge: float) -> Cluster:
     )
 
 
-def chained(box_min: NDArray, box_max: NDArray, gap: float) -> list[NDArray]:
-    """Groups of boxes joined by chains of gaps no wider than ``gap`` (single linkage), as index arrays."""
+def near_boxes(box_min: NDArray, box_max: NDArray, gap: float) -> NDArray:
+    """(boxes x boxes) True where two boxes are no more than ``gap`` apart."""
     between = np.maximum(box_min[:, None, :] - box_max[None, :, :], box_min[None, :, :] - box_max[:, None, :])
-    near = np.max(np.maximum(between, 0.0), axis=2) <= gap
-    n_groups, group = connected_components(near, directed=False)
+    return np.max(np.maximum(between, 0.0), axis=2) <= gap
+
+
+def components(links: NDArray) -> list[NDArray]:
+    """Groups joined by chains of links (single linkage), as index arrays."""
+    n_groups, group = connected_components(links, directed=False)
     return [np.flatnonzero(group == g) for g in range(n_groups)]
 
 
+def chained(box_min: NDArray, box_max: NDArray, gap: float) -> list[NDArray]:
+    """Groups of boxes joined by chains of gaps no wider than ``gap``."""
+    return components(near_boxes(box_min, box_max, gap))
+
+
+#: the 27 offsets from a voxel to itself and its 26 neighbours.
+_NEIGHBOURS = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+_BIAS = 1 << 20  # voxel coordinates within +-2^20 pack into 21 bits each
+
+
+def _keys(cells: NDArray) -> NDArray:
+    """Integer voxel coordinates packed into one int64 each."""
+    c = np.asarray(cells, dtype=np.int64).reshape(-1, 3) + _BIAS
+    return (c[:, 0] << 42) | (c[:, 1] << 21) | c[:, 2]
+
+
+def in_contact(voxels: list[NDArray], candidates: NDArray) -> NDArray:
+    """(pieces x pieces) True where, among ``candidates``, a voxel of one is a 26-neighbour of the other's."""
+    cells = [np.asarray(v, dtype=np.int64).reshape(-1, 3) for v in voxels]
+    touch = np.eye(len(cells), dtype=bool)
+    for i, j in zip(*np.nonzero(np.triu(candidates, k=1)), strict=True):
+        a, b = _facing(cells[i], cells[j]), _facing(cells[j], cells[i])
+        if len(a) and len(b):
+            reach = _keys((a[:, None, :] + _NEIGHBOURS).reshape(-1, 3))
+            touch[i, j] = touch[j, i] = bool(np.isin(_keys(b), reach).any())
+    return touch
+
+
+def _facing(cells: NDArray, other: NDArray) -> NDArray:
+    """The voxels of ``cells`` within one step of ``other``'s box: the only ones that can touch it."""
+    near = np.all((cells >= other.min(axis=0) - 1) & (cells <= other.max(axis=0) + 1), axis=1)
+    return cells[near]
+
+
+def footprint(voxels: NDArray) -> NDArray:
+    """The columns a cluster's voxels stand in, as voxels at height 0."""
+    columns = np.unique(np.asarray(voxels, dtype=np.int64).reshape(-1, 3)[:, 0:2], axis=0)
+    return np.column_stack([columns, np.zeros(len(columns), dtype=np.int64)])
+
+
+def standing_links(pieces: list[Cluster], near: NDArray, standing_m: float) -> NDArray:
+    """Which of the ``near`` links a group of pieces keeps when two standing on its floor must touch.
+
+    A piece whose box reaches down to within ``standing_m`` of the group's lowest piece stands on
+    the ground beside the others: a walker between a facade and a pole whose boxes the voxel map
+    had joined. It is part of another such piece only if their footprints touch, column beside
+    column seen from above: objects side by side on the ground stand apart there, while a car's
+    pieces stacked around the hole of its windows do not (3-D contact split those on synthetic
+    urban seed 7). A piece held higher (a tree's crown, a facade's upper storey) cannot stand
+    alone and joins by its box as before. Boxes decide alone when a piece carries no voxels.
+    """
+    voxels = [np.asarray(p.voxels) for p in pieces]
+    if standing_m < 0.0 or any(len(v) == 0 for v in voxels):
+        return near
+    bottom = np.array([p.bbox_min[2] for p in pieces], dtype=np.float64)
+    standing = bottom <= bottom.min() + standing_m
+    both = near & standing[:, None] & standing[None, :]
+    return near & (~both | in_contact([footprint(v) for v in voxels], both))
+
+
+def stand_apart(whole: Cluster, piece: Cluster, standing_m: float) -> bool:
+    """Whether a piece near a known object's cluster is an object of its own (standing_links)."""
+    return not standing_links([whole, piece], np.ones((2, 2), dtype=bool), standing_m)[0, 1]
+
+
 def gather(
-    clusters: list[Cluster], box_min: NDArray, box_max: NDArray, margin: float, edge: float, gap: float = -1.0
+    clusters: list[Cluster],
+    box_min: NDArray,
+    box_max: NDArray,
+    margin: float,
+    edge: float,
+    gap: float = -1.0,
+    standing_m: float = -1.0,
 ) -> list[Cluster]:
     """The clusters with each track's exclusive pieces merged; order otherwise kept."""
     if len(clusters) < 2 or len(box_min) == 0:
@@ -101,7 +185,11 @@ def gather(
     if gap >= 0.0:
         lo = np.array([c.bbox_min for c in clusters], dtype=np.float64)
         hi = np.array([c.bbox_max for c in clusters], dtype=np.float64)
-        groups = [g[part] for g in groups for part in chained(lo[g], hi[g], gap) if len(part) >= 2]
+        parted = []
+        for g in groups:
+            links = standing_links([clusters[i] for i in g], near_boxes(lo[g], hi[g], gap), standing_m)
+            parted += [g[part] for part in components(links) if len(part) >= 2]
+        groups = parted
     if not groups:
         return clusters
     merged_into: dict[int, Cluster] = {}
