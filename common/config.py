@@ -203,7 +203,7 @@ class TrackerConfig:
     jump_nis: float = 7.8  # innovation (squared Mahalanobis, 3 dof; 7.8 = chi2 95 %) that re-anchors, not corrects
     fragment_margin: float = 0.25  # clusters in a known track's predicted box grown by this (m) merge; < 0: off
     fragment_gap: float = 0.1  # ... only pieces whose boxes touch (chained by gaps up to this, m); < 0: any
-    fragment_standing_m: float = 0.3  # ... two reaching this near their floor (m) only if voxels touch; < 0: off
+    fragment_standing_m: float = 0.3  # ... two reaching this near their floor (m) only if footprints touch; < 0: off
     reshape_m: float = 3.0  # box grown or shrunk by more (m, x or y): a not-yet-moving track's speed window restarts
     narrow_across_m: float = 2.0  # narrower across its line of sight (m): may be labelled by its speed across; 0 = off
 

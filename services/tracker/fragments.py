@@ -27,7 +27,7 @@ tracking 0001 a tenth of its stationary recall, 1 m lost urban-s2's gain
 
 Boxes still touch where voxels do not: the voxel map joins a facade and a pole 2 m in front of
 it into one cluster, and a walker passing between them lies inside that box, touching it, frame
-after frame (synthetic urban: 33 walker- and cyclist-frames of ten runs with a cluster of their
+after frame (synthetic urban: 37 walker- and cyclist-frames of ten runs with a cluster of their
 own, centred on them, gathered into a neighbour's track). So two pieces that both stand on the
 group's floor must also touch column to column seen from above (``standing_links``), and an
 acceptance track is held back inside a tracked box only if its cluster would have been gathered
@@ -185,7 +185,7 @@ def gather(
     if gap >= 0.0:
         lo = np.array([c.bbox_min for c in clusters], dtype=np.float64)
         hi = np.array([c.bbox_max for c in clusters], dtype=np.float64)
-        parted = []
+        parted: list[NDArray] = []
         for g in groups:
             links = standing_links([clusters[i] for i in g], near_boxes(lo[g], hi[g], gap), standing_m)
             parted += [g[part] for part in components(links) if len(part) >= 2]
