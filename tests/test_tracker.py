@@ -17,7 +17,7 @@ from services.tracker import Tracker, kalman
 from services.tracker import anchor as anchor_module
 from services.tracker.anchor import anchors
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
-from services.tracker.fragments import chained, footprint, in_contact, merge
+from services.tracker.fragments import components, footprint, in_contact, merge, near_boxes
 from services.tracker.motion_window import speed_bound
 
 EDGE = 0.25
@@ -535,7 +535,7 @@ def test_pieces_of_a_known_object_stay_one_track() -> None:
 
 def test_only_pieces_chained_by_narrow_gaps_are_gathered() -> None:
     boxes = np.array([[0.0, 0.0, 0.0], [1.05, 0.0, 0.0], [2.0, 0.0, 0.0], [3.2, 0.0, 0.0]])
-    parts = chained(boxes, boxes + 1.0, 0.1)  # gaps 0.05, overlapping, 0.2 m
+    parts = components(near_boxes(boxes, boxes + 1.0, 0.1))  # gaps 0.05, overlapping, 0.2 m
     assert [p.tolist() for p in parts] == [[0, 1, 2], [3]]
 
 

@@ -101,11 +101,6 @@ def components(links: NDArray) -> list[NDArray]:
     return [np.flatnonzero(group == g) for g in range(n_groups)]
 
 
-def chained(box_min: NDArray, box_max: NDArray, gap: float) -> list[NDArray]:
-    """Groups of boxes joined by chains of gaps no wider than ``gap``."""
-    return components(near_boxes(box_min, box_max, gap))
-
-
 #: the 27 offsets from a voxel to itself and its 26 neighbours.
 _NEIGHBOURS = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
 _BIAS = 1 << 20  # voxel coordinates within +-2^20 pack into 21 bits each
