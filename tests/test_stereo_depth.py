@@ -239,23 +239,38 @@ def test_search_range_follows_the_calibration() -> None:
     assert _core(num_disparities=100).search_range(_calib()) == 112
 
 
+def _under_a_sky(top: float, horizon: float) -> StereoFrame:
+    """The scene under a sky (rows 0-59) brightening from ``top`` to ``horizon``, 1-level noise per view."""
+    frame, rng = _scene(), np.random.default_rng(1)
+    sky = np.linspace(top, horizon, 60)[:, None, None] * np.ones((1, WIDTH, 3))
+    left, right = frame.left.copy(), frame.right.copy()
+    left[:60] = np.clip(sky + rng.normal(0, 1.0, sky.shape), 0, 255)
+    right[:60] = np.clip(sky + rng.normal(0, 1.0, sky.shape), 0, 255)
+    return dataclasses.replace(frame, left=left, right=right)
+
+
 def test_a_flat_noisy_sky_gives_no_points_but_the_textured_wall_below_keeps_them() -> None:
     """Rows 0-59: a smooth vertical gradient with independent 1-level noise in each view (a real sky).
 
     SGM carries disparities into it from below and the two full-resolution views half agree on
     them; the texture test leaves only values the coarse pass corroborates (none here).
     """
-    frame, rng = _scene(), np.random.default_rng(1)
-    sky = np.linspace(150, 230, 60)[:, None, None] * np.ones((1, WIDTH, 3))
-    left, right = frame.left.copy(), frame.right.copy()
-    left[:60] = np.clip(sky + rng.normal(0, 1.0, sky.shape), 0, 255)
-    right[:60] = np.clip(sky + rng.normal(0, 1.0, sky.shape), 0, 255)
-    cloudy = dataclasses.replace(frame, left=left, right=right)
-    _, unchecked = _core(min_texture=0).process(cloudy)
+    cloudy = _under_a_sky(150, 230)
+    _, unchecked = _core(min_texture=0, sky_window_px=0).process(cloudy)
     _, checked = _core().process(cloudy)
     assert np.isfinite(unchecked.disparity[5:55]).sum() > 500  # 3-11 % of the sky, by noise seed
     assert np.isfinite(checked.disparity[5:55]).sum() < 20
     assert np.isfinite(checked.disparity[70:, 40:]).mean() > 0.95
+
+
+def test_the_sky_mask_alone_empties_the_sky_and_keeps_the_wall() -> None:
+    """A paler sky, brightening as gently as KITTI's, and no texture test: sky.py alone empties it."""
+    cloudy = _under_a_sky(195, 220)
+    _, unmasked = _core(min_texture=0, sky_window_px=0).process(cloudy)
+    _, masked = _core(min_texture=0, sky_window_px=5).process(cloudy)
+    assert np.isfinite(unmasked.disparity[5:55]).sum() > 500
+    assert np.isfinite(masked.disparity[5:55]).sum() < 20
+    assert np.isfinite(masked.disparity[70:, 40:]).mean() > 0.95
 
 
 def test_hidden_pixels_take_the_surface_beside_them_but_not_across_a_colour_edge() -> None:
