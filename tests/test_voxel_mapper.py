@@ -15,6 +15,7 @@ from common.messages import Clusters, EgoMotion, GroundTruthObject, GroundTruthO
 from services.voxel_mapper import VoxelMapper
 from services.voxel_mapper.colour import hsl_of
 from services.voxel_mapper.overhang import Overhang, frame_rows, overhangs
+from services.voxel_mapper.terrain import TerrainProfile
 
 RED, BLUE, GREY, GREEN, GLASS = (200, 40, 30), (30, 50, 190), (110, 110, 105), (40, 190, 60), (60, 70, 90)
 
@@ -248,6 +249,22 @@ def test_cross_slope_has_no_obstacles_in_terrain_mode() -> None:
     tilted = (flat[0] + np.outer(flat[0][:, 1] * 0.05, [0.0, 0.0, 1.0]).astype(np.float32), flat[1])
     assert len(mapper(ground="flat").process(cloud(tilted), ego()).clusters) > 0
     assert mapper().process(cloud(tilted), ego()).clusters == []
+
+
+def test_the_road_fit_does_not_change_with_points_off_the_road_or_their_order() -> None:
+    """The fit samples points by their own coordinates: taking points high above the road out (as the
+    sky mask takes out sky) and shuffling the rest leave the same road. Sampled by index, KITTI's road
+    at 38 m moved when the sky mask took out two voxels' worth of sky."""
+    graded = road(grade=0.03)
+    camber = graded[0] + np.outer(graded[0][:, 1] * 0.04, [0.0, 0.0, 1.0]).astype(np.float32)
+    sky = box((20, 3, 6), (22, 6, 9), RED)[0]
+    with_sky = TerrainProfile().fit(np.concatenate([sky, camber]))
+    ground, cross = with_sky.ground.copy(), with_sky.cross
+    shuffled = camber[np.random.default_rng(5).permutation(len(camber))]
+    alone = TerrainProfile().fit(shuffled)
+    assert alone.cross == pytest.approx(cross, abs=1e-6) and cross == pytest.approx(0.04, abs=0.005)
+    assert alone.ground == pytest.approx(ground, abs=1e-6)
+    assert ground[-1] == pytest.approx(0.03 * 28.2, abs=0.05)
 
 
 def test_overhanging_box_is_one_cluster_spanning_its_height() -> None:

@@ -35,11 +35,41 @@ class FlatGround:
 
 
 @numba.njit(cache=True)
-def _height_histogram(points: npt.NDArray[np.float32], stride: int, cross: float, x0: float, dx: float, nx: int,
-                      z0: float, dz: float, nz: int) -> npt.NDArray[np.int64]:
-    """Counts of every ``stride``-th point per (slice of x, bin of z - cross * y)."""
+def _drawn(
+    points: npt.NDArray[np.float32], every: int, rarer: int
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+    """About one point in ``every``, and one in ``every * rarer`` of those, drawn by each point's own
+    coordinates (mm): the draw does not change with whatever other points the cloud holds.
+
+    Sampling every n-th point by index made the fit depend on unrelated points: on KITTI tracking
+    0001 two voxels of sky left out shifted which road points were drawn, the road at 38 m moved,
+    and a parked car dropped below the clearance (docs/results/voxel.md, "Session 19").
+    """
+    n = points.shape[0]
+    drawn = np.empty((n + 1, 3), dtype=np.float32)
+    few = np.empty((n + 1, 3), dtype=np.float32)
+    m = k = 0
+    for p in range(n):  # branch-free: a coin-flip branch per point costs more than the copies
+        h = (np.int64(points[p, 0] * 1000.0) * 73856093) ^ (np.int64(points[p, 1] * 1000.0) * 19349663)
+        h ^= np.int64(points[p, 2] * 1000.0) * 83492791
+        h = ((h ^ (h >> 13)) * 2654435761) >> 7
+        chosen = (h & 0xFFFF) * every < 0x10000
+        rare = chosen & (((h >> 16) & 0xFFFF) * rarer < 0x10000)
+        for a in range(3):
+            drawn[m, a] = points[p, a]
+            few[k, a] = points[p, a]
+        m += chosen
+        k += rare
+    return drawn[:m], few[:k]
+
+
+@numba.njit(cache=True)
+def _height_histogram(
+    points: npt.NDArray[np.float32], cross: float, x0: float, dx: float, nx: int, z0: float, dz: float, nz: int
+) -> npt.NDArray[np.int64]:
+    """Counts of points per (slice of x, bin of z - cross * y)."""
     hist = np.zeros((nx, nz), dtype=np.int64)
-    for p in range(0, points.shape[0], stride):
+    for p in range(points.shape[0]):
         i = int(np.floor((points[p, 0] - x0) / dx))
         k = int(np.floor((points[p, 2] - cross * points[p, 1] - z0) / dz))
         if 0 <= i < nx and 0 <= k < nz:
@@ -61,8 +91,8 @@ class TerrainProfile:
     max_grade: float = 0.15  # steepest change of height per metre accepted
     max_cross: float = 0.12  # steepest cross slope accepted
     min_points: int = 10  # fewer (histogrammed) road points in a slice: interpolated
-    stride: int = 2  # every n-th point makes the histograms (far slices keep ~200 road points)
-    sample: int = 8  # every n-th point fits the cross slope
+    stride: int = 2  # one point in n makes the histograms (far slices keep ~200 road points)
+    sample: int = 8  # one point in n fits the cross slope
 
     def __post_init__(self) -> None:
         self.nx = max(1, int(np.ceil((self.x_max - self.x_min) / self.slice_m)))
@@ -74,10 +104,11 @@ class TerrainProfile:
     def fit(self, points: npt.NDArray[np.floating]) -> TerrainProfile:
         """Estimate g(x) and the cross slope from this frame's vehicle-frame points."""
         pts = np.ascontiguousarray(points, dtype=np.float32)
+        drawn, few = _drawn(pts, self.stride, max(1, self.sample // self.stride))
         self.cross = 0.0
-        self._profile(pts)
-        self.cross = self._cross_slope(pts[:: self.sample])
-        self._profile(pts)
+        self._profile(drawn)
+        self.cross = self._cross_slope(few)
+        self._profile(drawn)
         return self
 
     def height(self, points: npt.NDArray[np.floating]) -> F64:
@@ -87,8 +118,7 @@ class TerrainProfile:
         return pts[:, 2] - road - self.cross * pts[:, 1]
 
     def _profile(self, pts: npt.NDArray[np.float32]) -> None:
-        hist = _height_histogram(pts, self.stride, self.cross, self.x_min, self.slice_m, self.nx,
-                                 self.z_min, self.bin_m, self.nz)
+        hist = _height_histogram(pts, self.cross, self.x_min, self.slice_m, self.nx, self.z_min, self.bin_m, self.nz)
         smooth = hist.astype(np.float64)
         smooth[:, 1:-1] = 0.25 * hist[:, :-2] + 0.5 * hist[:, 1:-1] + 0.25 * hist[:, 2:]
         centres = self.z_min + (np.arange(self.nz) + 0.5) * self.bin_m
