@@ -21,7 +21,7 @@ from common.messages import StereoFrame
 from common.recording import open_recording
 from services.stereo_depth.core import StereoDepth
 
-STEPS: tuple[str, ...] = ("sgbm_coarse", "sgbm_fine", "lr_check", "fill", "subpixel", "reproject", "total")
+STEPS: tuple[str, ...] = ("sgbm_coarse", "sgbm_fine", "lr_check", "fill", "subpixel", "sky", "reproject", "total")
 
 
 def measure(core: StereoDepth, frames: Sequence[StereoFrame], repeat: int) -> dict[str, dict[str, float]]:

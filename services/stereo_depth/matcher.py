@@ -66,7 +66,7 @@ class MultiResolutionMatcher:
         self.min_texture = min_texture
         self.subpixel = subpixel
         self.sky_window_px, self.sky_max_gradient = sky
-        #: milliseconds of the last ``match`` per step: sgbm_coarse, sgbm_fine, lr_check, fill, subpixel.
+        #: milliseconds of the last ``match`` per step: sgbm_coarse, sgbm_fine, lr_check, fill, subpixel, sky.
         self.timings_ms: dict[str, float] = {}
 
     @classmethod
@@ -109,14 +109,14 @@ class MultiResolutionMatcher:
         )  # fmt: skip
 
     def match(self, left_rgb: Image, right_rgb: Image) -> DisparityMap:
-        self.timings_ms = dict.fromkeys(("sgbm_coarse", "sgbm_fine", "lr_check", "fill", "subpixel"), 0.0)
+        self.timings_ms = dict.fromkeys(("sgbm_coarse", "sgbm_fine", "lr_check", "fill", "subpixel", "sky"), 0.0)
         left, right = self._intensity(left_rgb), self._intensity(right_rgb)
         coarse_left, coarse_right = self._coarse(left, right)
         fine = self._fine(left, right, coarse_right)
         fused = self._timed("fill", lambda: self._fuse(fine, coarse_left, left))
         fused = self._timed("subpixel", lambda: self._refine(fused, left, right))
         fused = self._timed("fill", lambda: self._fill_hidden(fused, left))
-        return self._timed("fill", lambda: self._drop_sky(fused, left))
+        return self._timed("sky", lambda: self._drop_sky(fused, left))
 
     def _timed(self, step: str, work: Callable[[], T]) -> T:
         start = time.perf_counter()

@@ -21,11 +21,11 @@ import numpy.typing as npt
 from services.stereo_depth.sgbm import Image
 
 
-def sky_mask(image: Image, window: int, min_gradient: float) -> npt.NDArray[np.bool_]:
-    """Pixels joined to the top row through pixels whose mean |gradient| (window square) is under ``min_gradient``."""
+def sky_mask(image: Image, window: int, max_gradient: float) -> npt.NDArray[np.bool_]:
+    """Pixels joined to the top row through pixels whose mean |gradient| (window square) is under ``max_gradient``."""
     grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
     gradient = np.abs(cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3)) + np.abs(cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3))
-    flat = (cv2.blur(gradient, (window, window)) < np.float32(min_gradient)).astype(np.uint8)
+    flat = (cv2.blur(gradient, (window, window)) < np.float32(max_gradient)).astype(np.uint8)
     _, labels = cv2.connectedComponents(flat, connectivity=4)
     top = np.unique(labels[0][flat[0] > 0])
     return np.isin(labels, top) if top.size else np.zeros(grey.shape, dtype=bool)
