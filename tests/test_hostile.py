@@ -214,6 +214,13 @@ class HealthWatch:
         with self._lock:
             return self.latest.get(service)
 
+    def summary(self) -> str:
+        """Frames in / out / dropped per service, for a failure message that says where frames stopped."""
+        with self._lock:
+            return ", ".join(
+                f"{name} {h.frames_in}/{h.frames_out}/{h.dropped}" for name, h in sorted(self.latest.items())
+            )
+
 
 def fuzz(session: zenoh.Session, pools: dict[str, list[tuple[str, bytes]]], seconds: float,
          sent: Counter[str], kinds: Counter[str], stop: threading.Event) -> float:
@@ -332,7 +339,10 @@ def _hostile_run(
         report = health.get("tracker")
         return (report is not None and report.frames_out >= FRAMES) or launch.poll() is not None
 
-    wait_for(tracker_done, 180, f"all {FRAMES} frames through the tracker")
+    try:
+        wait_for(tracker_done, 180, f"all {FRAMES} frames through the tracker")
+    except pytest.fail.Exception:
+        pytest.fail(f"not all {FRAMES} frames reached the tracker; frames in/out/dropped: {health.summary()}")
     expected = expected_errors(sent)
 
     def counted() -> bool:
