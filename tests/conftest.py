@@ -101,14 +101,19 @@ def processes(tmp_path: Path) -> Iterator[Processes]:
         procs.kill_all()
 
 
-def wait_for(predicate: Callable[[], bool], timeout: float, what: str, interval: float = 0.05) -> None:
-    """Poll until ``predicate`` holds; fail naming ``what`` after a generous timeout."""
+def wait_for(
+    predicate: Callable[[], bool], timeout: float, what: str | Callable[[], str], interval: float = 0.05
+) -> None:
+    """Poll until ``predicate`` holds; fail naming ``what`` after a generous timeout.
+
+    ``what`` may be a callable, read only on failure, to say the state the wait ended in.
+    """
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if predicate():
             return
         time.sleep(interval)
-    pytest.fail(f"timed out after {timeout:.0f} s waiting for {what}")
+    pytest.fail(f"timed out after {timeout:.0f} s waiting for {what() if callable(what) else what}")
 
 
 @pytest.fixture(scope="session")

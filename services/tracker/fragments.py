@@ -44,6 +44,7 @@ import numpy.typing as npt
 from scipy.sparse.csgraph import connected_components
 
 from common.messages import Cluster
+from common.voxel_keys import pack_cells
 
 NDArray = npt.NDArray[Any]
 
@@ -103,13 +104,6 @@ def components(links: NDArray) -> list[NDArray]:
 
 #: the 27 offsets from a voxel to itself and its 26 neighbours.
 _NEIGHBOURS = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
-_BIAS = 1 << 20  # voxel coordinates within +-2^20 pack into 21 bits each
-
-
-def _keys(cells: NDArray) -> NDArray:
-    """Integer voxel coordinates packed into one int64 each."""
-    c = np.asarray(cells, dtype=np.int64).reshape(-1, 3) + _BIAS
-    return (c[:, 0] << 42) | (c[:, 1] << 21) | c[:, 2]
 
 
 def in_contact(voxels: list[NDArray], candidates: NDArray) -> NDArray:
@@ -119,8 +113,8 @@ def in_contact(voxels: list[NDArray], candidates: NDArray) -> NDArray:
     for i, j in zip(*np.nonzero(np.triu(candidates, k=1)), strict=True):
         a, b = _facing(cells[i], cells[j]), _facing(cells[j], cells[i])
         if len(a) and len(b):
-            reach = _keys((a[:, None, :] + _NEIGHBOURS).reshape(-1, 3))
-            touch[i, j] = touch[j, i] = bool(np.isin(_keys(b), reach).any())
+            reach = pack_cells((a[:, None, :] + _NEIGHBOURS).reshape(-1, 3))
+            touch[i, j] = touch[j, i] = bool(np.isin(pack_cells(b), reach).any())
     return touch
 
 

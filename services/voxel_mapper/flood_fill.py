@@ -14,8 +14,9 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from common.voxel_keys import BITS
 from services.voxel_mapper.colour import similarity
-from services.voxel_mapper.voxel_map import BITS, EMPTY, VoxelMap, find
+from services.voxel_mapper.voxel_map import EMPTY, VoxelMap, find
 
 I32 = npt.NDArray[np.int32]
 

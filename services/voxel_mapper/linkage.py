@@ -35,8 +35,9 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from common.voxel_keys import BITS, FIELD, OFFSET
 from services.voxel_mapper.flood_fill import DELTAS
-from services.voxel_mapper.voxel_map import BITS, EMPTY, FIELD, OFFSET, VoxelMap, find, pack
+from services.voxel_mapper.voxel_map import EMPTY, VoxelMap, find, pack
 
 I32 = npt.NDArray[np.int32]
 MAX_SEEN = 32

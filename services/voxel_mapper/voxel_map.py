@@ -19,14 +19,12 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from common.voxel_keys import BITS, OFFSET, unpack
 from services.voxel_mapper.colour import rgb_to_hsl
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 
-BITS = 21
-OFFSET = 1 << (BITS - 1)  # coordinates in [-OFFSET, OFFSET) fit
-FIELD = (1 << BITS) - 1
 EMPTY = -1
 INV255 = 1.0 / 255.0
 GOLDEN = np.uint64(0x9E3779B97F4A7C15)
@@ -141,16 +139,6 @@ def _insert(points: npt.NDArray[np.float32], colors: npt.NDArray[np.uint8], rot:
             last_seen[s] = frame
         st[16] += 1.0
     return n, points.shape[0]
-
-
-def unpack(keys: I64) -> npt.NDArray[np.int32]:
-    """Integer voxel coordinates (Kx3 int32) of packed keys."""
-    k = np.asarray(keys, dtype=np.int64)
-    out = np.empty((k.shape[0], 3), dtype=np.int32)
-    out[:, 0] = (k >> (2 * BITS)) - OFFSET
-    out[:, 1] = ((k >> BITS) & FIELD) - OFFSET
-    out[:, 2] = (k & FIELD) - OFFSET
-    return out
 
 
 class VoxelMap:
