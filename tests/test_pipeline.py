@@ -20,6 +20,7 @@ from conftest import REPO, stereovox_cmd, wait_for
 
 from common.codec import encode
 from common.errors import ConfigError
+from common.evaluation.evaluate import evaluate_recording
 from common.messages import Obstacles
 from common.recording import open_recording
 from services.demo import BUNDLED
@@ -91,6 +92,9 @@ def test_a_demo_run_restarted_at_the_mapper_gives_its_own_obstacles(
     for frame_id in range(FRAMES):
         assert _obstacle_rows(new[frame_id]) == _obstacle_rows(old[frame_id]), frame_id
     assert sorted(after.by_topic("groundtruth/objects")) == sorted(before.by_topic("groundtruth/objects"))
+    figures = evaluate_recording(out)["latency_ms"]
+    assert figures["end_to_end"] == {"p50": None, "p95": None}  # the mapper ran now, the stereo then
+    assert figures["voxel_mapper"]["p50"] > 0.0 and figures["stereo_depth"]["p50"] > 0.0
 
 
 @pytest.mark.timeout(450)
