@@ -594,6 +594,43 @@ def test_a_walker_parting_inside_the_box_of_a_facade_and_a_pole_gets_a_track(sta
         assert walkers == [] and len(tracked) == 1  # gathered back into the blob, frame after frame
 
 
+@pytest.mark.parametrize("thin_m", [Config().tracker.fragment_thin_m, 0.0])
+def test_walkers_crossing_abreast_whose_smears_touch_get_a_track_each(thin_m: float) -> None:
+    # synthetic crossing: walkers two abreast, 1 m apart in range, each smeared 2 m along the line
+    # of sight, so their footprints touch column to column; one blob first, then a cluster each
+    tracker = new_tracker(fragment_thin_m=thin_m)
+
+    def walkers(k: int) -> tuple[np.ndarray, np.ndarray]:
+        y = -3.0 + 0.15 * k  # 1.5 m/s across the road
+        near = box_voxels((20.0, y, 0.0), (22.0, y + 0.5, 1.75))
+        return near, box_voxels((21.0, y + 0.5, 0.0), (23.0, y + 1.0, 1.75))
+
+    for k in range(6):
+        out = step(tracker, k, [of_voxels(np.vstack(walkers(k)), 0, (0.5, 0.5, 0.5))])
+    for k in range(6, 22):
+        near, far = walkers(k)
+        out = step(tracker, k, [of_voxels(near, 0, (0.6, 0.2, 0.2)), of_voxels(far, 1, (0.2, 0.2, 0.6))])
+    tracked = sorted((o for o in out.obstacles if o.state == "tracked"), key=lambda o: o.centroid[0])
+    if thin_m > 0.0:
+        assert [round(o.centroid[0]) for o in tracked] == [21, 22]
+    else:
+        assert len(tracked) == 1  # gathered into the blob's track, frame after frame
+
+
+def test_a_car_standing_in_two_pieces_of_its_length_stays_one_track() -> None:
+    # a car in two colours split across its length: both pieces stand and are as tall as a walker,
+    # but each is the car's width across, so they are gathered as before
+    tracker = new_tracker()
+    for k in range(5):
+        out = step(tracker, k, [surface((15.0, -1.0, 0.0), (19.5, 1.0, 1.5))])
+    (car,) = [o for o in out.obstacles if o.state == "tracked"]
+    for k in range(5, 15):
+        front = surface((15.0, -1.0, 0.0), (17.0, 1.0, 1.5), 0)
+        back = surface((17.0, -1.0, 0.0), (19.5, 1.0, 1.5), 1, (0.2, 0.2, 0.6))
+        out = step(tracker, k, [front, back])
+        assert [o.id for o in out.obstacles] == [car.id], k
+
+
 def test_a_crown_apart_from_its_trunk_stays_one_track() -> None:
     # a tree seen split by colour into trunk and crown, voxels a step apart: the crown, held 1.5 m
     # up, cannot stand alone, so it is gathered by its box as before (KITTI tracking 0001's hedges

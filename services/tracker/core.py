@@ -38,7 +38,7 @@ from common.config import Config, VolumeConfig
 from common.messages import Cluster, Clusters, EgoMotion, Obstacles
 from services.tracker import kalman, motion_window
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
-from services.tracker.fragments import claims, gather, stand_apart
+from services.tracker.fragments import APART_BY_BOX, Standing, claims, gather, stand_apart
 from services.tracker.measurement import cut_covariance, stereo_covariance, visibility_covariance
 from services.tracker.motion_state import (
     SLIDE_SMOOTHING,
@@ -91,7 +91,7 @@ class Tracker:
         jump_nis: float = float("inf"),
         fragment_margin: float = -1.0,
         fragment_gap: float = -1.0,
-        fragment_standing_m: float = -1.0,
+        fragment_standing: Standing = APART_BY_BOX,
         accept_misses: int = 0,
         reshape_m: float = float("inf"),
         narrow_across_m: float = 0.0,
@@ -111,7 +111,7 @@ class Tracker:
         self.jump_nis = jump_nis
         self.fragment_margin = fragment_margin
         self.fragment_gap = fragment_gap
-        self.fragment_standing_m = fragment_standing_m
+        self.fragment_standing = fragment_standing
         self.accept_misses = accept_misses
         self.reshape_m = reshape_m
         self.narrow_across_m = narrow_across_m
@@ -143,7 +143,7 @@ class Tracker:
             jump_nis=t.jump_nis,
             fragment_margin=t.fragment_margin,
             fragment_gap=t.fragment_gap,
-            fragment_standing_m=t.fragment_standing_m,
+            fragment_standing=Standing(t.fragment_standing_m, t.fragment_upright_m, t.fragment_thin_m),
             accept_misses=t.accept_misses,
             reshape_m=t.reshape_m,
             narrow_across_m=t.narrow_across_m,
@@ -224,7 +224,7 @@ class Tracker:
         shift = (t.x[known, 0:3] + t.offset[known]) - t.centroid[known]
         lo, hi = t.bbox_min[known] + shift, t.bbox_max[known] + shift
         margin, edge = self.fragment_margin, clusters.voxel_edge
-        return gather(clusters.clusters, lo, hi, margin, edge, self.fragment_gap, self.fragment_standing_m)
+        return gather(clusters.clusters, lo, hi, margin, edge, self.fragment_gap, self.fragment_standing)
 
     def _observe(self, clusters: list[Cluster], pose: NDArray, edge: float) -> Observations:
         obs, dropped = observe(clusters, pose, edge)
@@ -346,7 +346,7 @@ class Tracker:
         known_rows, young_rows = np.flatnonzero(known), np.flatnonzero(young)
         for k, y in zip(*np.nonzero(inside), strict=True):
             whole, piece = piece_of.get(int(known_rows[k])), piece_of.get(int(young_rows[y]))
-            if whole is not None and piece is not None and stand_apart(whole, piece, self.fragment_standing_m):
+            if whole is not None and piece is not None and stand_apart(whole, piece, self.fragment_standing):
                 inside[k, y] = False
         held[young] = inside.any(axis=0)
         return held

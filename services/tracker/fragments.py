@@ -33,10 +33,19 @@ group's floor must also touch column to column seen from above (``standing_links
 acceptance track is held back inside a tracked box only if its cluster would have been gathered
 (``stand_apart``). Moving recall, tracker replays: tuning seeds 1-6 69.7 -> 71.9 %, held-out
 seeds 7-10 68.5 -> 71.4 % (docs/results/tracking.md, "Session 18").
+
+Footprints touch too where stereo smear joins them: walkers crossing the road two or three
+abreast, 1-2 m apart in range, each a cluster of its own colour 2-3 m long along the line of
+sight. Their footprints touched, they were gathered into one track, and the others had none
+(synthetic urban and crossing, tuning seeds: 52 walker-frames). A standing piece as tall as a
+person and no wider than one (``Standing.upright_m``, ``thin_m``) is a whole object: two such are
+never gathered, whatever touches. A car's pieces are wider, and a walker's legs and coat are
+not each that tall (docs/results/tracking.md, "Session 20").
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -130,7 +139,27 @@ def footprint(voxels: NDArray) -> NDArray:
     return np.column_stack([columns, np.zeros(len(columns), dtype=np.int64)])
 
 
-def standing_links(pieces: list[Cluster], near: NDArray, standing_m: float) -> NDArray:
+@dataclass(frozen=True)
+class Standing:
+    """When pieces standing side by side are objects of their own (standing_links)."""
+
+    floor_m: float = -1.0  # a box reaching this near the group's lowest stands on its floor; < 0: off
+    upright_m: float = 0.0  # a standing box this tall (m) ...
+    thin_m: float = 0.0  # ... and this narrow in x or y (m) is a whole person or pole; 0: off
+
+    def whole(self, pieces: list[Cluster], standing: NDArray) -> NDArray:
+        """Which standing pieces are a whole upright object by their boxes."""
+        if self.upright_m <= 0.0:
+            return np.zeros(len(pieces), dtype=bool)
+        extent = np.array([np.asarray(p.bbox_max) - np.asarray(p.bbox_min) for p in pieces], dtype=np.float64)
+        return standing & (extent[:, 2] >= self.upright_m) & (extent[:, 0:2].min(axis=1) <= self.thin_m)
+
+
+#: standing pieces not told apart: boxes alone decide.
+APART_BY_BOX = Standing()
+
+
+def standing_links(pieces: list[Cluster], near: NDArray, standing: Standing) -> NDArray:
     """Which of the ``near`` links a group of pieces keeps when two standing on its floor must touch.
 
     A piece whose box reaches down to within ``standing_m`` of the group's lowest piece stands on
@@ -142,17 +171,19 @@ def standing_links(pieces: list[Cluster], near: NDArray, standing_m: float) -> N
     alone and joins by its box as before. Boxes decide alone when a piece carries no voxels.
     """
     voxels = [np.asarray(p.voxels) for p in pieces]
-    if standing_m < 0.0 or any(len(v) == 0 for v in voxels):
+    if standing.floor_m < 0.0 or any(len(v) == 0 for v in voxels):
         return near
     bottom = np.array([p.bbox_min[2] for p in pieces], dtype=np.float64)
-    standing = bottom <= bottom.min() + standing_m
-    both = near & standing[:, None] & standing[None, :]
-    return near & (~both | in_contact([footprint(v) for v in voxels], both))
+    on_floor = bottom <= bottom.min() + standing.floor_m
+    both = near & on_floor[:, None] & on_floor[None, :]
+    links = near & (~both | in_contact([footprint(v) for v in voxels], both))
+    whole = standing.whole(pieces, on_floor)
+    return links & ~(whole[:, None] & whole[None, :] & ~np.eye(len(pieces), dtype=bool))
 
 
-def stand_apart(whole: Cluster, piece: Cluster, standing_m: float) -> bool:
+def stand_apart(whole: Cluster, piece: Cluster, standing: Standing) -> bool:
     """Whether a piece near a known object's cluster is an object of its own (standing_links)."""
-    return not standing_links([whole, piece], np.ones((2, 2), dtype=bool), standing_m)[0, 1]
+    return not standing_links([whole, piece], np.ones((2, 2), dtype=bool), standing)[0, 1]
 
 
 def gather(
@@ -162,7 +193,7 @@ def gather(
     margin: float,
     edge: float,
     gap: float = -1.0,
-    standing_m: float = -1.0,
+    standing: Standing = APART_BY_BOX,
 ) -> list[Cluster]:
     """The clusters with each track's exclusive pieces merged; order otherwise kept."""
     if len(clusters) < 2 or len(box_min) == 0:
@@ -176,7 +207,7 @@ def gather(
         hi = np.array([c.bbox_max for c in clusters], dtype=np.float64)
         parted: list[NDArray] = []
         for g in groups:
-            links = standing_links([clusters[i] for i in g], near_boxes(lo[g], hi[g], gap), standing_m)
+            links = standing_links([clusters[i] for i in g], near_boxes(lo[g], hi[g], gap), standing)
             parted += [g[part] for part in components(links) if len(part) >= 2]
         groups = parted
     if not groups:
