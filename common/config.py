@@ -210,6 +210,7 @@ class TrackerConfig:
     fragment_thin_m: float = 1.3  # wide in x or y: a person or a pole each, however near; 0: off
     reshape_m: float = 3.0  # box grown or shrunk by more (m, x or y): a not-yet-moving track's speed window restarts
     narrow_across_m: float = 2.0  # narrower across its line of sight (m): may be labelled by its speed across; 0 = off
+    revive_restart_m: float = 1.0  # a ghost found this far (m) from its prediction restarts its speed window; 0: off
 
 
 @dataclass

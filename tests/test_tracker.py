@@ -719,3 +719,19 @@ def test_a_moving_track_keeps_its_faces_through_a_change_of_shape() -> None:
         step(tracker, k, [surface((x, 2.0, 0.25), (x + 8.0, 4.5, 3.0))])
     (o,) = step(tracker, 10, [surface((25.0, 2.0, 0.25), (29.0, 4.5, 3.0))]).obstacles
     assert o.moving and tracker.tracks.window_n[0] > 1
+
+
+@pytest.mark.parametrize("found_m", [0.3, 1.5])
+def test_a_ghost_found_again_metres_from_its_prediction_starts_its_speed_window_again(found_m: float) -> None:
+    # synthetic urban seed 1: a young track lost for four frames was given a standing walker 3 m
+    # beyond it, read the step as 6 m/s, and its speed window, spanning the gap, agreed
+    tracker = new_tracker()
+    for k in range(3):
+        out = step(tracker, k, [surface((40.0, -5.0, 0.0), (40.5, -4.5, 1.75))])
+    for k in range(3, 6):
+        out = step(tracker, k, [])
+    assert [o.state for o in out.obstacles] == ["ghost"]
+    out = step(tracker, 6, [surface((40.0 + found_m, -5.0, 0.0), (40.5 + found_m, -4.5, 1.75))])
+    assert [o.state for o in out.obstacles] == ["tracked"]
+    restarted = found_m > Config().tracker.revive_restart_m
+    assert tracker.tracks.window_n.tolist() == ([1] if restarted else [4])

@@ -52,7 +52,7 @@ from services.tracker.motion_state import (
 from services.tracker.observations import Observations, observe
 from services.tracker.queues import advance
 from services.tracker.report import obstacles_of
-from services.tracker.track import ACCEPTANCE, TRACKED, TrackTable
+from services.tracker.track import ACCEPTANCE, GHOST, TRACKED, TrackTable
 
 NDArray = npt.NDArray[Any]
 
@@ -95,6 +95,7 @@ class Tracker:
         accept_misses: int = 0,
         reshape_m: float = float("inf"),
         narrow_across_m: float = 0.0,
+        revive_restart_m: float = 0.0,
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -115,6 +116,7 @@ class Tracker:
         self.accept_misses = accept_misses
         self.reshape_m = reshape_m
         self.narrow_across_m = narrow_across_m
+        self.revive_restart_m = revive_restart_m
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.tracks = TrackTable()
         self.ego = EgoVelocity()
@@ -147,6 +149,7 @@ class Tracker:
             accept_misses=t.accept_misses,
             reshape_m=t.reshape_m,
             narrow_across_m=t.narrow_across_m,
+            revive_restart_m=t.revive_restart_m,
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
@@ -279,6 +282,11 @@ class Tracker:
         # a centroid further off than the filter allows is a cluster that changed (split, merge,
         # another face in view), not the object moving: re-anchor the position, keep the velocity
         jump = nis * 3.0 > self.jump_nis
+        # a ghost found again metres from where it was predicted may be another object: one seen
+        # a few frames, its speed unknown, takes the step as speed, and a window spanning the gap
+        # agrees; the window starts again (synthetic urban-s1: a standing walker called moving at 6 m/s)
+        off = np.linalg.norm((obs.anchor - t.x[rows, 0:3])[:, 0:2], axis=1)
+        refound = (t.queue[rows] == GHOST) & (off > self.revive_restart_m) & (self.revive_restart_m > 0.0)
         x[jump, 0:3] = obs.anchor[jump]
         x[jump, 3:6] = t.x[rows][jump, 3:6]
         p[jump] = t.p[rows][jump]
@@ -290,7 +298,7 @@ class Tracker:
         # merged into); a track already moving keeps its faces, which its label stays on
         extent_step = np.abs(obs.extent - (t.bbox_max[rows] - t.bbox_min[rows]))[:, 0:2].max(axis=1)
         reshaped = (extent_step > self.reshape_m) & ~t.moving[rows]
-        motion_window.restart(t.window_n, rows[jump | reshaped])
+        motion_window.restart(t.window_n, rows[jump | reshaped | refound])
         motion_window.push(t.window, t.window_t, t.window_n, rows, obs.anchor, self._clock)
         motion_window.push(t.window_far, t.window_t.copy(), t.window_n.copy(), rows, obs.anchor + obs.far, self._clock)
         t.nis[rows] += self.noise_adaptation * (np.where(jump, t.nis[rows], nis) - t.nis[rows])
