@@ -206,8 +206,8 @@ class TrackerConfig:
     fragment_margin: float = 0.25  # clusters in a known track's predicted box grown by this (m) merge; < 0: off
     fragment_gap: float = 0.1  # ... only pieces whose boxes touch (chained by gaps up to this, m); < 0: any
     fragment_standing_m: float = 0.3  # ... two reaching this near their floor (m) only if footprints touch; < 0: off
-    fragment_upright_m: float = 1.2  # ... and never two standing this tall (m) and at most fragment_thin_m
-    fragment_thin_m: float = 1.3  # wide in x or y: a person or a pole each, however near; 0: off
+    upright_m: float = 1.2  # a cluster this tall (m) and at most upright_thin_m across in x or y is a person or a
+    upright_thin_m: float = 1.3  # pole: two standing are never gathered, a narrow one gets no extent noise; 0: off
     reshape_m: float = 3.0  # box grown or shrunk by more (m, x or y): a not-yet-moving track's speed window restarts
     narrow_across_m: float = 2.0  # narrower across its line of sight (m): may be labelled by its speed across; 0 = off
     revive_restart_m: float = 1.0  # a ghost found this far (m) from its prediction restarts its speed window; 0: off

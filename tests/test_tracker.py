@@ -411,7 +411,7 @@ def of_voxels(voxels: np.ndarray, cid: int = 0, rgb: tuple[float, float, float] 
 def test_anchor_stays_on_the_faces_in_view_while_the_far_side_grows() -> None:
     # a parked car right of the road: its rear (near x) and its road side (high y) face the camera
     short, long = surface((20.0, -4.0, 0.25), (21.0, -2.25, 1.5)), surface((20.0, -4.0, 0.25), (24.5, -2.25, 1.5))
-    points, side, _ = anchors([short, long], np.array([short.centroid, long.centroid]), np.eye(4), EDGE)
+    points, side, _, _ = anchors([short, long], np.array([short.centroid, long.centroid]), np.eye(4), EDGE)
     assert side.tolist() == [2, 2]
     a, b = points[0, 2], points[1, 2]
     assert abs(a[0] - b[0]) < 0.3 and abs(a[1] - b[1]) < 0.01  # the centroids are 1.75 m apart
@@ -437,7 +437,7 @@ def test_a_narrow_cluster_is_followed_at_its_points_median_range_a_wide_one_at_i
     car = smeared((20.0, -4.0, 0.25), (24.0, -1.5, 1.5), core_points=60)  # 2.5 m wide
     old = smeared((20.0, -0.25, 0.0), (20.5, 0.25, 1.75), core_points=60, fringe_points=None)
     clusters = [walker, car, old]
-    points, _, far = anchors(clusters, np.array([c.centroid for c in clusters]), np.eye(4), EDGE)
+    points, _, far, _ = anchors(clusters, np.array([c.centroid for c in clusters]), np.eye(4), EDGE)
     assert points[0, 1, 0] == pytest.approx(20.125, abs=0.01)  # the core's first layer holds the median point
     assert points[1, 2, 0] == pytest.approx(19.125, abs=0.01)  # the near face, fringe and all
     assert points[2, 1, 0] == pytest.approx(19.125, abs=0.01)  # without counts: the near face, as before
@@ -461,6 +461,22 @@ def test_a_walker_coming_closer_inside_a_shrinking_smear_is_called_moving(
         assert all(moving[-4:]) and o.velocity[0] == pytest.approx(-1.5, abs=0.3), (moving, o.velocity)
     else:
         assert not any(moving) and abs(o.velocity[0]) < 0.5, (moving, o.velocity)
+
+
+@pytest.mark.parametrize("upright_m", [Config().tracker.upright_m, 0.0])
+def test_a_walker_whose_smear_swings_is_not_doubted_for_his_box_changing(upright_m: float) -> None:
+    # 1.5 m/s towards the camera from 25 m inside a fringe 0.5-3 m deep that changes every frame:
+    # his box's length swings by metres while the median of his points walks steadily. Without
+    # the upright test (upright_m = 0) each swing is added to the noise of that median.
+    tracker, moving = new_tracker(upright_m=upright_m), []
+    for k in range(20):
+        x, fringe = 25.0 - 0.15 * k, 0.5 + 2.5 * abs(np.sin(1.2 * k))
+        walker = smeared((x, -0.25, 0.0), (x + 0.5, 0.25, 1.75), core_points=60, fringe_m=fringe)
+        walker = Cluster(**{**vars(walker), "bbox_min": np.array([x - fringe, -0.25, 0.0])})
+        (o,) = step(tracker, k, [walker]).obstacles
+        moving.append(o.moving)
+    assert o.velocity[0] == pytest.approx(-1.5, abs=0.1)
+    assert moving.index(True) <= 10 if upright_m > 0.0 else moving.index(True) >= 15, moving
 
 
 @pytest.mark.parametrize("narrow_m", [2.0, 0.0])
@@ -594,11 +610,11 @@ def test_a_walker_parting_inside_the_box_of_a_facade_and_a_pole_gets_a_track(sta
         assert walkers == [] and len(tracked) == 1  # gathered back into the blob, frame after frame
 
 
-@pytest.mark.parametrize("thin_m", [Config().tracker.fragment_thin_m, 0.0])
+@pytest.mark.parametrize("thin_m", [Config().tracker.upright_thin_m, 0.0])
 def test_walkers_crossing_abreast_whose_smears_touch_get_a_track_each(thin_m: float) -> None:
     # synthetic crossing: walkers two abreast, 1 m apart in range, each smeared 2 m along the line
     # of sight, so their footprints touch column to column; one blob first, then a cluster each
-    tracker = new_tracker(fragment_thin_m=thin_m)
+    tracker = new_tracker(upright_thin_m=thin_m)
 
     def walkers(k: int) -> tuple[np.ndarray, np.ndarray]:
         y = -3.0 + 0.15 * k  # 1.5 m/s across the road

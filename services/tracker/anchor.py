@@ -55,8 +55,8 @@ def _points_per_voxel(clusters: list[Cluster], counts: NDArray) -> tuple[NDArray
 
 def anchors(
     clusters: list[Cluster], centroids: NDArray, pose: NDArray, edge: float
-) -> tuple[NDArray, NDArray, NDArray]:
-    """World points (n, 3 sides, 3), the side in view (n,) and the far-end shift (n, 3) of each cluster.
+) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """World points (n, 3 sides, 3), the side in view (n,), the far-end shift (n, 3) and which are narrow (n,).
 
     Side 0 takes the low-y face (object left of the line of sight), 1 the middle (straddling it),
     2 the high-y face (right of it); x is the near face (a narrow cluster's median range) and z
@@ -72,9 +72,10 @@ def anchors(
     out = np.repeat(np.asarray(centroids, dtype=np.float64)[:, None, :], 3, axis=1)
     side = np.ones(n, dtype=np.int8)
     far = np.zeros((n, 3))
+    narrow = np.zeros(n, dtype=bool)
     counts = np.array([np.asarray(c.voxels).shape[0] for c in clusters], dtype=np.int64)
     if n == 0 or not np.isfinite(pose).all() or counts.sum() == 0:
-        return out, side, far
+        return out, side, far, narrow
     rotation, origin = pose[0:3, 0:3], pose[0:3, 3]
     voxels = np.concatenate([np.asarray(c.voxels, dtype=np.float64).reshape(-1, 3) for c in clusters])
     local = ((voxels + 0.5) * edge - origin) @ rotation[:, 0:2]  # vehicle x, y of every voxel
@@ -104,11 +105,12 @@ def anchors(
     q = FACE_PERCENTILE / 100.0
     near_x, far_x, range_x = ranked(local[:, 0], (q, 1.0 - q), (0.5,))
     y_lo, y_hi, width_lo, width_hi = ranked(local[:, 1], (q, 1.0 - q), (0.05, 0.95))
-    x = np.where(counted & (width_hi - width_lo < NARROW_M), range_x, near_x)
+    narrow[:] = counted & (width_hi - width_lo < NARROW_M) & has
+    x = np.where(narrow, range_x, near_x)
     z = (out[:, 0] - origin) @ rotation[:, 2]
     for k, y in enumerate((y_lo, 0.5 * (y_lo + y_hi), y_hi)):
         points = np.column_stack([x, y, z])
         out[has, k] = (points @ rotation.T + origin)[has]
     side[has] = np.where(y_hi < 0.0, 2, np.where(y_lo > 0.0, 0, 1))[has]
     far[has] = ((far_x - x)[:, None] * rotation[:, 0][None, :])[has]
-    return out, side, far
+    return out, side, far, narrow

@@ -144,15 +144,20 @@ class Standing:
     """When pieces standing side by side are objects of their own (standing_links)."""
 
     floor_m: float = -1.0  # a box reaching this near the group's lowest stands on its floor; < 0: off
-    upright_m: float = 0.0  # a standing box this tall (m) ...
+    upright_m: float = 0.0  # a box this tall (m) ...
     thin_m: float = 0.0  # ... and this narrow in x or y (m) is a whole person or pole; 0: off
+
+    def upright(self, extent: NDArray) -> NDArray:
+        """Which boxes of these extents (n, 3) are a person's or a pole's."""
+        extent = np.asarray(extent, dtype=np.float64).reshape(-1, 3)
+        if self.upright_m <= 0.0 or self.thin_m <= 0.0:
+            return np.zeros(len(extent), dtype=bool)
+        return (extent[:, 2] >= self.upright_m) & (extent[:, 0:2].min(axis=1) <= self.thin_m)
 
     def whole(self, pieces: list[Cluster], standing: NDArray) -> NDArray:
         """Which standing pieces are a whole upright object by their boxes."""
-        if self.upright_m <= 0.0:
-            return np.zeros(len(pieces), dtype=bool)
         extent = np.array([np.asarray(p.bbox_max) - np.asarray(p.bbox_min) for p in pieces], dtype=np.float64)
-        return standing & (extent[:, 2] >= self.upright_m) & (extent[:, 0:2].min(axis=1) <= self.thin_m)
+        return standing & self.upright(extent)
 
 
 #: standing pieces not told apart: boxes alone decide.

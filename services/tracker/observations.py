@@ -23,6 +23,7 @@ class Observations:
     anchors: NDArray  # (m, 3, 3) the points the filter may follow, one per side (anchor.py)
     side: NDArray  # (m,) the side in view
     far: NDArray  # (m, 3) from the near end to the far end of the cluster along the vehicle's x
+    narrow: NDArray  # (m,) followed at the median range of its points, not its near face (anchor.py)
     bbox_min: NDArray
     bbox_max: NDArray
     rgb: NDArray
@@ -66,13 +67,14 @@ def observe(clusters: list[Cluster], pose: NDArray, edge: float) -> tuple[Observ
         scalars[i] = (c.density, c.volume)
     finite = np.isfinite(geometry).all(axis=1) & np.isfinite(colour).all(axis=1) & np.isfinite(scalars).all(axis=1)
     keep = np.flatnonzero(finite)
-    points, side, far = anchors([clusters[i] for i in keep.tolist()], geometry[keep, 0:3], pose, edge)
+    points, side, far, narrow = anchors([clusters[i] for i in keep.tolist()], geometry[keep, 0:3], pose, edge)
     obs = Observations(
         index=keep,
         centroid=geometry[keep, 0:3],
         anchors=points,
         side=side,
         far=far,
+        narrow=narrow,
         bbox_min=geometry[keep, 3:6],
         bbox_max=geometry[keep, 6:9],
         rgb=colour[keep, 0:3],
