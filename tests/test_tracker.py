@@ -483,8 +483,10 @@ def test_a_walker_whose_smear_swings_is_not_doubted_for_his_box_changing(upright
 def test_a_walker_crossing_inside_a_swinging_smear_is_moving_by_its_bearing(narrow_m: float) -> None:
     # Smear stretches both narrow objects along the line of sight by 0.6-3.0 m and back, so their
     # boxes grow and shrink along it; across it they keep their width. The walker crosses at
-    # 1.4 m/s, the post stands still. tracker.narrow_across_m = 0: the whole velocity only.
-    tracker, walker_moving, post_moving = new_tracker(narrow_across_m=narrow_m), [], []
+    # 1.4 m/s, the post stands still. tracker.narrow_across_m = 0: the whole velocity only. Both
+    # are upright; their label is held to moving_sigma_k here, so that only the bearing differs.
+    tracker = new_tracker(narrow_across_m=narrow_m, upright_sigma_k=Config().tracker.moving_sigma_k)
+    walker_moving, post_moving = [], []
     for k in range(25):
         smear, smear_post = 0.6 + 2.4 * abs(np.sin(1.2 * k)), 0.6 + 2.4 * abs(np.sin(1.2 * k + 1.0))
         walker = cluster(0, (15.0 + smear / 2, -3.0 + 0.14 * k, 0.9), size=(smear, 0.6, 1.8), rgb=(0.2, 0.6, 0.2))
@@ -498,6 +500,22 @@ def test_a_walker_crossing_inside_a_swinging_smear_is_moving_by_its_bearing(narr
         assert walker_moving.index(True) <= 4 and sum(walker_moving) >= 20, walker_moving
     else:
         assert walker_moving.index(True) >= 6 and sum(walker_moving) <= 16, walker_moving
+
+
+@pytest.mark.parametrize("sigma_k", [Config().tracker.upright_sigma_k, Config().tracker.moving_sigma_k])
+def test_an_upright_track_is_called_moving_at_fewer_sigmas_and_a_post_still_is_not(sigma_k: float) -> None:
+    # the walker of the test above at 1.2 m/s and 18 m, judged by his whole velocity only
+    tracker = new_tracker(narrow_across_m=0.0, upright_sigma_k=sigma_k)
+    walker_moving, post_moving = [], []
+    for k in range(25):
+        smear, smear_post = 0.6 + 2.4 * abs(np.sin(1.2 * k)), 0.6 + 2.4 * abs(np.sin(1.2 * k + 1.0))
+        walker = cluster(0, (18.0 + smear / 2, -3.0 + 0.12 * k, 0.9), size=(smear, 0.6, 1.8), rgb=(0.2, 0.6, 0.2))
+        post = cluster(1, (18.0 + smear_post / 2, 3.0, 1.5), size=(smear_post, 0.3, 3.0), rgb=(0.3, 0.3, 0.6))
+        by_side = sorted(step(tracker, k, [walker, post]).obstacles, key=lambda o: o.centroid[1])
+        walker_moving.append(by_side[0].moving)
+        post_moving.append(by_side[1].moving)
+    assert not any(post_moving)
+    assert sum(walker_moving) >= 10 if sigma_k < Config().tracker.moving_sigma_k else not any(walker_moving)
 
 
 def test_a_speed_bound_along_a_direction_ignores_the_scatter_across_it() -> None:

@@ -96,6 +96,7 @@ class Tracker:
         reshape_m: float = float("inf"),
         narrow_across_m: float = 0.0,
         revive_restart_m: float = 0.0,
+        upright_sigma_k: float | None = None,
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -117,6 +118,7 @@ class Tracker:
         self.reshape_m = reshape_m
         self.narrow_across_m = narrow_across_m
         self.revive_restart_m = revive_restart_m
+        self.upright_sigma_k = hysteresis.sigma_k if upright_sigma_k is None else upright_sigma_k
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.tracks = TrackTable()
         self.ego = EgoVelocity()
@@ -150,6 +152,7 @@ class Tracker:
             reshape_m=t.reshape_m,
             narrow_across_m=t.narrow_across_m,
             revive_restart_m=t.revive_restart_m,
+            upright_sigma_k=t.upright_sigma_k,
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
@@ -433,7 +436,10 @@ class Tracker:
                 np.where(use, a.slide, slide),
             )
             confirm = np.where(use, across_confirm, confirm)
-        t.moving = label(t.moving, speed, sigma, slide, t.age, self.hysteresis, confirm)
+        # an upright track's filter doubts its speed about twice as much as its faces scatter
+        # (docs/results/tracking.md, "Session 20"), so it needs fewer of those sigmas to be moving
+        upright = np.where(self.standing.upright(extent), self.upright_sigma_k, k)
+        t.moving = label(t.moving, speed, sigma, slide, t.age, self.hysteresis, confirm, upright)
 
     def _window_bound(self, k: float, direction: NDArray | None = None) -> NDArray:
         """The faces' own bound on the speed (motion_window.py): the lower of the near and far ends'."""

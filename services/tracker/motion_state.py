@@ -122,14 +122,16 @@ def label(
     age: NDArray,
     rule: Hysteresis,
     confirm: NDArray | None = None,
+    sigma_k: NDArray | None = None,
 ) -> NDArray:
     """New moving flags from the previous ones.
 
     ``confirm`` is a second lower bound on the speed (motion_window.py), -inf where it has no
     opinion yet: turning moving needs it above ``on`` as well, and a moving track whose window
     falls below ``off`` turns stationary; without an opinion the filter's bound decides alone.
+    ``sigma_k`` (n,) replaces the rule's ``sigma_k`` track by track.
     """
-    bound = speed - rule.sigma_k * sigma - slide
+    bound = speed - (rule.sigma_k if sigma_k is None else sigma_k) * sigma - slide
     turn_on = (bound > rule.on) & (age >= rule.min_frames)
     stay = bound >= rule.off
     if confirm is not None:
