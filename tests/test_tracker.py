@@ -479,22 +479,31 @@ def test_a_walker_whose_smear_swings_is_not_doubted_for_his_box_changing(upright
     assert moving.index(True) <= 10 if upright_m > 0.0 else moving.index(True) >= 15, moving
 
 
-@pytest.mark.parametrize("narrow_m", [2.0, 0.0])
-def test_a_walker_crossing_inside_a_swinging_smear_is_moving_by_its_bearing(narrow_m: float) -> None:
-    # Smear stretches both narrow objects along the line of sight by 0.6-3.0 m and back, so their
-    # boxes grow and shrink along it; across it they keep their width. The walker crosses at
-    # 1.4 m/s, the post stands still. tracker.narrow_across_m = 0: the whole velocity only. Both
-    # are upright; their label is held to moving_sigma_k here, so that only the bearing differs.
-    tracker = new_tracker(narrow_across_m=narrow_m, upright_sigma_k=Config().tracker.moving_sigma_k)
+def walker_and_post(tracker: Tracker, range_m: float, speed: float) -> tuple[list[bool], list[bool]]:
+    """Moving labels of a walker crossing at ``speed`` and of a post, both ``range_m`` ahead in swinging smear.
+
+    Smear stretches both narrow objects along the line of sight by 0.6-3.0 m and back, so their
+    boxes grow and shrink along it; across it they keep their width.
+    """
     walker_moving, post_moving = [], []
     for k in range(25):
         smear, smear_post = 0.6 + 2.4 * abs(np.sin(1.2 * k)), 0.6 + 2.4 * abs(np.sin(1.2 * k + 1.0))
-        walker = cluster(0, (15.0 + smear / 2, -3.0 + 0.14 * k, 0.9), size=(smear, 0.6, 1.8), rgb=(0.2, 0.6, 0.2))
-        post = cluster(1, (15.0 + smear_post / 2, 3.0, 1.5), size=(smear_post, 0.3, 3.0), rgb=(0.3, 0.3, 0.6))
+        walker = cluster(0, (range_m + smear / 2, -3.0 + speed * 0.1 * k, 0.9), size=(smear, 0.6, 1.8),
+                         rgb=(0.2, 0.6, 0.2))
+        post = cluster(1, (range_m + smear_post / 2, 3.0, 1.5), size=(smear_post, 0.3, 3.0), rgb=(0.3, 0.3, 0.6))
         by_side = sorted(step(tracker, k, [walker, post]).obstacles, key=lambda o: o.centroid[1])
         assert len(by_side) == 2, k
         walker_moving.append(by_side[0].moving)
         post_moving.append(by_side[1].moving)
+    return walker_moving, post_moving
+
+
+@pytest.mark.parametrize("narrow_m", [2.0, 0.0])
+def test_a_walker_crossing_inside_a_swinging_smear_is_moving_by_its_bearing(narrow_m: float) -> None:
+    # tracker.narrow_across_m = 0: the whole velocity only. Both are upright; their label is held
+    # to moving_sigma_k here, so that only the bearing differs.
+    tracker = new_tracker(narrow_across_m=narrow_m, upright_sigma_k=Config().tracker.moving_sigma_k)
+    walker_moving, post_moving = walker_and_post(tracker, 15.0, 1.4)
     assert not any(post_moving)
     if narrow_m > 0:
         assert walker_moving.index(True) <= 4 and sum(walker_moving) >= 20, walker_moving
@@ -504,16 +513,8 @@ def test_a_walker_crossing_inside_a_swinging_smear_is_moving_by_its_bearing(narr
 
 @pytest.mark.parametrize("sigma_k", [Config().tracker.upright_sigma_k, Config().tracker.moving_sigma_k])
 def test_an_upright_track_is_called_moving_at_fewer_sigmas_and_a_post_still_is_not(sigma_k: float) -> None:
-    # the walker of the test above at 1.2 m/s and 18 m, judged by his whole velocity only
-    tracker = new_tracker(narrow_across_m=0.0, upright_sigma_k=sigma_k)
-    walker_moving, post_moving = [], []
-    for k in range(25):
-        smear, smear_post = 0.6 + 2.4 * abs(np.sin(1.2 * k)), 0.6 + 2.4 * abs(np.sin(1.2 * k + 1.0))
-        walker = cluster(0, (18.0 + smear / 2, -3.0 + 0.12 * k, 0.9), size=(smear, 0.6, 1.8), rgb=(0.2, 0.6, 0.2))
-        post = cluster(1, (18.0 + smear_post / 2, 3.0, 1.5), size=(smear_post, 0.3, 3.0), rgb=(0.3, 0.3, 0.6))
-        by_side = sorted(step(tracker, k, [walker, post]).obstacles, key=lambda o: o.centroid[1])
-        walker_moving.append(by_side[0].moving)
-        post_moving.append(by_side[1].moving)
+    # slower and further than above, judged by the whole velocity only
+    walker_moving, post_moving = walker_and_post(new_tracker(narrow_across_m=0.0, upright_sigma_k=sigma_k), 18.0, 1.2)
     assert not any(post_moving)
     assert sum(walker_moving) >= 10 if sigma_k < Config().tracker.moving_sigma_k else not any(walker_moving)
 

@@ -438,8 +438,8 @@ class Tracker:
             confirm = np.where(use, across_confirm, confirm)
         # an upright track's filter doubts its speed about twice as much as its faces scatter
         # (docs/results/tracking.md, "Session 20"), so it needs fewer of those sigmas to be moving
-        upright = np.where(self.standing.upright(extent), self.upright_sigma_k, k)
-        t.moving = label(t.moving, speed, sigma, slide, t.age, self.hysteresis, confirm, upright)
+        sigma_k = np.where(self.standing.upright(extent), self.upright_sigma_k, k)
+        t.moving = label(t.moving, speed, sigma, slide, t.age, self.hysteresis, confirm, sigma_k)
 
     def _window_bound(self, k: float, direction: NDArray | None = None) -> NDArray:
         """The faces' own bound on the speed (motion_window.py): the lower of the near and far ends'."""

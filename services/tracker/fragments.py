@@ -141,7 +141,11 @@ def footprint(voxels: NDArray) -> NDArray:
 
 @dataclass(frozen=True)
 class Standing:
-    """When pieces standing side by side are objects of their own (standing_links)."""
+    """When pieces standing side by side are objects of their own (standing_links).
+
+    The shape it calls upright, a person's or a pole's, is also what the tracker follows and
+    labels by its own noise (core.py).
+    """
 
     floor_m: float = -1.0  # a box reaching this near the group's lowest stands on its floor; < 0: off
     upright_m: float = 0.0  # a box this tall (m) ...
@@ -167,13 +171,15 @@ APART_BY_BOX = Standing()
 def standing_links(pieces: list[Cluster], near: NDArray, standing: Standing) -> NDArray:
     """Which of the ``near`` links a group of pieces keeps when two standing on its floor must touch.
 
-    A piece whose box reaches down to within ``standing_m`` of the group's lowest piece stands on
+    A piece whose box reaches down to within ``standing.floor_m`` of the group's lowest piece stands on
     the ground beside the others: a walker between a facade and a pole whose boxes the voxel map
     had joined. It is part of another such piece only if their footprints touch, column beside
     column seen from above: objects side by side on the ground stand apart there, while a car's
     pieces stacked around the hole of its windows do not (3-D contact split those on synthetic
     urban seed 7). A piece held higher (a tree's crown, a facade's upper storey) cannot stand
-    alone and joins by its box as before. Boxes decide alone when a piece carries no voxels.
+    alone and joins by its box as before. Two standing pieces that are each upright
+    (``Standing.whole``) never link, touch as they may. Boxes decide alone when a piece carries no
+    voxels.
     """
     voxels = [np.asarray(p.voxels) for p in pieces]
     if standing.floor_m < 0.0 or any(len(v) == 0 for v in voxels):
