@@ -29,6 +29,7 @@ from services.demo import BUNDLED, REPO, recording_settings
 from services.launch import Supervisor
 from services.launch_spec import load_spec
 from services.pipeline import Pipeline, config_for
+from services.tracker.benchmark import figures as tracker_figures
 
 LIVE_SPEC = REPO / "deploy" / "live.yaml"
 KITTI_SIZE = (1242, 375)
@@ -185,6 +186,7 @@ def bench_kitti_size(kitti: Path | None, frames: int, workdir: Path) -> dict[str
 def run_bench(recording: Path, frames: int, seconds: float, plots: Path | None,
               kitti: Path | None = None, kitti_frames: int = 12) -> dict[str, Any]:
     report = bench_frames(recording, frames)
+    report["tracker_50"] = tracker_figures(repeats=3)
     with tempfile.TemporaryDirectory(prefix="stereovox-bench-") as tmp:
         report.update(bench_distributed(recording, seconds, Path(tmp)))
         if kitti_frames > 0:
@@ -245,6 +247,11 @@ def run(args: argparse.Namespace) -> int:
     if report["e2e_ms"]:
         print(f"e2e             p50 {report['e2e_ms']['p50']:.1f} ms  p95 {report['e2e_ms']['p95']:.1f} ms")
     print(f"dropped         {report['dropped']}")
+    t50 = report["tracker_50"]
+    print(
+        f"tracker_{t50['objects']}      median {t50['wall_ms']:.2f} ms wall, {t50['cpu_ms']:.2f} ms CPU per frame "
+        f"with {t50['objects']} obstacles (goal <= 2 ms; python -m services.tracker.benchmark)"
+    )
     print("rss_mb          " + ", ".join(f"{k} {v:.0f}" for k, v in report["rss_mb"].items() if v))
     print("private_mb      " + ", ".join(f"{k} {v:.0f}" for k, v in report["private_mb"].items() if v))
     print("cpu_pct         " + ", ".join(f"{k} {v:.0f}" for k, v in report["cpu_pct"].items() if v))

@@ -32,6 +32,7 @@ def test_bench_json_has_every_figure() -> None:
     for figures in (report["rss_mb"], report["private_mb"], report["cpu_pct"]):
         assert set(figures) >= STAGES and all(v is not None and v > 0 for v in figures.values())
     assert all(report["private_mb"][n] < report["rss_mb"][n] for n in STAGES)  # a peak holds what is private now
+    assert report["tracker_50"]["objects"] == 50 and report["tracker_50"]["cpu_ms"] > 0
     kitti = report["kitti_size"]
     assert set(kitti["stages"]) == STAGES and kitti["process_hz"] > 0
     for sweep in (report["voxel_sweep"], kitti["voxel_sweep"]):

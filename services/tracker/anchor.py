@@ -47,10 +47,13 @@ def _points_per_voxel(clusters: list[Cluster], counts: NDArray) -> tuple[NDArray
 
     A cluster from a recording made before the mapper counted points weighs its voxels alike.
     """
-    parts = [np.asarray(c.voxel_points, dtype=np.float64) for c in clusters]
-    counted = np.array([len(w) == n for w, n in zip(parts, counts.tolist(), strict=True)], dtype=bool)
-    weights = [w + 1e-3 if ok else np.ones(n) for w, ok, n in zip(parts, counted, counts.tolist(), strict=True)]
-    return np.concatenate(weights), counted  # + 1e-3: a voxel kept without points this frame counts a little
+    parts = [np.asarray(c.voxel_points) for c in clusters]
+    counted = np.array([len(w) for w in parts]) == counts
+    if not counted.all():
+        parts = [w if ok else np.ones(n) for w, ok, n in zip(parts, counted, counts.tolist(), strict=True)]
+    weights = np.concatenate(parts).astype(np.float64)
+    # + 1e-3: a voxel kept without points this frame counts a little
+    return np.where(np.repeat(counted, counts), weights + 1e-3, weights), counted
 
 
 def anchors(
@@ -77,8 +80,10 @@ def anchors(
     if n == 0 or not np.isfinite(pose).all() or counts.sum() == 0:
         return out, side, far, narrow
     rotation, origin = pose[0:3, 0:3], pose[0:3, 3]
-    voxels = np.concatenate([np.asarray(c.voxels, dtype=np.float64).reshape(-1, 3) for c in clusters])
-    local = ((voxels + 0.5) * edge - origin) @ rotation[:, 0:2]  # vehicle x, y of every voxel
+    voxels = np.concatenate([np.asarray(c.voxels).reshape(-1, 3) for c in clusters]).astype(np.float64)
+    # vehicle x, y of every voxel; np.dot with the scale folded in: ``@`` on (n, 3) x (3, 2) is 4x slower here
+    axes = np.ascontiguousarray(rotation[:, 0:2])
+    local = np.dot(voxels, edge * axes) + (0.5 * edge - origin) @ axes
     label = np.repeat(np.arange(n), counts)
     has = counts > 0
     starts = np.minimum(np.concatenate([[0], np.cumsum(counts)[:-1]]), len(voxels) - 1)
@@ -93,7 +98,7 @@ def anchors(
         One sort serves both: the faces count voxels, a narrow cluster's range and width its points.
         """
         low = values.min()
-        order = np.argsort(label * (float(values.max() - low) + 1.0) + (values - low))
+        order = np.argsort(label * (float(values.max() - low) + 1.0) + (values - low), kind="stable")
         ordered = values[order]
         out = []
         for cum, shares in ((by_count, by_voxels), (np.cumsum(weights[order]), by_points)):

@@ -109,8 +109,8 @@ def greedy_pairs(distance: NDArray, gate: float) -> tuple[NDArray, NDArray]:
     flat = np.flatnonzero(distance < gate)
     order = flat[np.argsort(distance.ravel()[flat], kind="stable")]
     rows, cols = np.divmod(order, n_c)
-    row_used = np.zeros(n_t, dtype=bool)
-    col_used = np.zeros(n_c, dtype=bool)
+    row_used = [False] * n_t  # lists: a numpy element access per pair costs more than the loop
+    col_used = [False] * n_c
     out_t: list[int] = []
     out_c: list[int] = []
     limit = min(n_t, n_c)

@@ -68,22 +68,29 @@ def measure(frames: list[tuple[Clusters, EgoMotion]]) -> tuple[float, float, int
     return float(np.median(wall[10:]) * 1e3), float(np.median(cpu[10:]) * 1e3), len(out.obstacles)
 
 
+def figures(objects: int = 50, frames: int = 100, repeats: int = 5, show: bool = False) -> dict[str, float]:
+    """Medians over ``repeats`` of the per-frame medians: what ``stereovox bench`` reports."""
+    scenes = scene(frames, objects, seed=0)
+    walls, cpus = [], []
+    for r in range(repeats):
+        wall, cpu, n = measure(scenes)
+        walls.append(wall)
+        cpus.append(cpu)
+        if show:
+            print(f"repeat {r}: median {wall:.2f} ms wall, {cpu:.2f} ms CPU per frame; {n} obstacles out")
+    return {"objects": objects, "wall_ms": float(np.median(walls)), "cpu_ms": float(np.median(cpus))}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--objects", type=int, default=50)
     parser.add_argument("--frames", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
-    frames = scene(args.frames, args.objects, seed=0)
-    voxels = [c.voxel_count for c in frames[0][0].clusters]
+    voxels = [c.voxel_count for c in scene(1, args.objects, seed=0)[0][0].clusters]
     print(f"{args.objects} objects, voxels per cluster median {int(np.median(voxels))}, max {max(voxels)}")
-    walls, cpus = [], []
-    for r in range(args.repeats):
-        wall, cpu, n = measure(frames)
-        walls.append(wall)
-        cpus.append(cpu)
-        print(f"repeat {r}: median {wall:.2f} ms wall, {cpu:.2f} ms CPU per frame; {n} obstacles out")
-    print(f"median of repeats: {float(np.median(walls)):.2f} ms wall, {float(np.median(cpus)):.2f} ms CPU per frame")
+    out = figures(args.objects, args.frames, args.repeats, show=True)
+    print(f"median of repeats: {out['wall_ms']:.2f} ms wall, {out['cpu_ms']:.2f} ms CPU per frame")
 
 
 if __name__ == "__main__":

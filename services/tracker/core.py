@@ -172,7 +172,8 @@ class Tracker:
             self._correct(rows, obs.take(cols), r[cols])
         piece_of = {int(i): pieces[int(obs.index[j])] for i, j in zip(rows, cols, strict=True)}
         self._advance_queues(rows, elapsed, piece_of)
-        fresh = np.setdiff1d(np.arange(len(obs)), cols)
+        fresh = np.ones(len(obs), dtype=bool)
+        fresh[cols] = False
         self._spawn(obs.take(fresh), r[fresh])
         if trusted:
             self._label_motion(clusters.voxel_edge, pose[0:2, 3])
@@ -280,36 +281,38 @@ class Tracker:
         # hardly moves the median range of its points that a narrow cluster is followed at
         # (anchor.py): its extent change is no noise on that point (docs/results/tracking.md,
         # "Session 20"; without the upright test KITTI's roadside structures were called moving)
-        seen = visibility_covariance(obs.extent, t.bbox_max[rows] - t.bbox_min[rows])
+        extent_before = t.bbox_max[rows] - t.bbox_min[rows]
+        seen = visibility_covariance(obs.extent, extent_before)
         seen[obs.narrow & self.standing.upright(obs.extent)] = 0.0
         r = r + seen
         # adaptive noise: a cluster whose centroid keeps jumping by more than its covariance says
         # (a fragment of a split object, changing membership) is believed that much less
-        nis = kalman.normalised_innovation(t.x[rows], t.p[rows], obs.anchor, r)
+        x_before, p_before, anchor = t.x[rows], t.p[rows], obs.anchor
+        nis = kalman.normalised_innovation(x_before, p_before, anchor, r)
         r = r * np.maximum(t.nis[rows], 1.0)[:, None, None]
-        x, p = kalman.update(t.x[rows], t.p[rows], obs.anchor, r)
+        x, p = kalman.update(x_before, p_before, anchor, r)
         # a centroid further off than the filter allows is a cluster that changed (split, merge,
         # another face in view), not the object moving: re-anchor the position, keep the velocity
         jump = nis * 3.0 > self.jump_nis
         # a ghost found again metres from where it was predicted may be another object: one seen
         # a few frames, its speed unknown, takes the step as speed, and a window spanning the gap
         # agrees; the window starts again (synthetic urban-s1: a standing walker called moving at 6 m/s)
-        off = np.linalg.norm((obs.anchor - t.x[rows, 0:3])[:, 0:2], axis=1)
+        off = np.linalg.norm((anchor - x_before[:, 0:3])[:, 0:2], axis=1)
         refound = (t.queue[rows] == GHOST) & (off > self.revive_restart_m) & (self.revive_restart_m > 0.0)
-        x[jump, 0:3] = obs.anchor[jump]
-        x[jump, 3:6] = t.x[rows][jump, 3:6]
-        p[jump] = t.p[rows][jump]
+        x[jump, 0:3] = anchor[jump]
+        x[jump, 3:6] = x_before[jump, 3:6]
+        p[jump] = p_before[jump]
         p[jump, 0:3, 0:3] = r[jump]
         p[jump, 0:3, 3:6] = 0.0
         p[jump, 3:6, 0:3] = 0.0
         # and the faces of the old shape say nothing about the new one's motion, even where the
         # filter let a change of extent pass as visibility (a parked car leaving the blob it was
         # merged into); a track already moving keeps its faces, which its label stays on
-        extent_step = np.abs(obs.extent - (t.bbox_max[rows] - t.bbox_min[rows]))[:, 0:2].max(axis=1)
+        extent_step = np.abs(obs.extent - extent_before)[:, 0:2].max(axis=1)
         reshaped = (extent_step > self.reshape_m) & ~t.moving[rows]
         motion_window.restart(t.window_n, rows[jump | reshaped | refound])
-        motion_window.push(t.window, t.window_t, t.window_n, rows, obs.anchor, self._clock)
-        motion_window.push(t.window_far, t.window_t.copy(), t.window_n.copy(), rows, obs.anchor + obs.far, self._clock)
+        motion_window.push(t.window, t.window_t, t.window_n, rows, anchor, self._clock)
+        motion_window.push(t.window_far, t.window_t.copy(), t.window_n.copy(), rows, anchor + obs.far, self._clock)
         t.nis[rows] += self.noise_adaptation * (np.where(jump, t.nis[rows], nis) - t.nis[rows])
         t.x[rows], t.p[rows] = x, p
         t.offset[rows] = obs.centroid - x[:, 0:3]
@@ -421,12 +424,11 @@ class Tracker:
         speed, sigma = speed_and_sigma(t.x[:, 3:6], t.p[:, 3:6, 3:6])
         slide = slide_speed(extent, t.extent_slow, self.frame_period_s, voxel_edge)
         k = self.hysteresis.sigma_k
-        confirm = self._window_bound(k)
         if self.narrow_across_m > 0.0 and len(t):
             a = across_sight(
                 t.x[:, 0:2], t.x[:, 3:5], t.p[:, 3:5, 3:5], extent, t.extent_slow, eye, self.frame_period_s, voxel_edge
             )
-            across_confirm = self._window_bound(k, a.normal)
+            confirm, across_confirm = self._window_bounds(k, a.normal)
             evidence = np.minimum(speed - k * sigma - slide, confirm)
             across_evidence = np.minimum(a.speed - k * a.sigma - a.slide, across_confirm)
             use = (a.width < self.narrow_across_m) & (across_evidence > evidence)
@@ -436,15 +438,27 @@ class Tracker:
                 np.where(use, a.slide, slide),
             )
             confirm = np.where(use, across_confirm, confirm)
+        else:
+            confirm, _ = self._window_bounds(k)
         # an upright track's filter doubts its speed about twice as much as its faces scatter
         # (docs/results/tracking.md, "Session 20"), so it needs fewer of those sigmas to be moving
         sigma_k = np.where(self.standing.upright(extent), self.upright_sigma_k, k)
         t.moving = label(t.moving, speed, sigma, slide, t.age, self.hysteresis, confirm, sigma_k)
 
-    def _window_bound(self, k: float, direction: NDArray | None = None) -> NDArray:
-        """The faces' own bound on the speed (motion_window.py): the lower of the near and far ends'."""
+    def _window_bounds(self, k: float, direction: NDArray | None = None) -> tuple[NDArray, NDArray]:
+        """The faces' own bounds on the speed (motion_window.py), whole and along ``direction``.
+
+        Each is the lower of the near and far ends' bounds; both ends go through one fit, as they
+        share times and counts.
+        """
         t = self.tracks
-        return np.minimum(
-            motion_window.speed_bound(t.window, t.window_t, t.window_n, self.measurement_std, k, direction),
-            motion_window.speed_bound(t.window_far, t.window_t, t.window_n, self.measurement_std, k, direction),
+        n = len(t)
+        whole, along = motion_window.speed_bounds(
+            np.concatenate([t.window, t.window_far]),
+            np.concatenate([t.window_t, t.window_t]),
+            np.concatenate([t.window_n, t.window_n]),
+            self.measurement_std,
+            k,
+            None if direction is None else np.concatenate([direction, direction]),
         )
+        return np.minimum(whole[:n], whole[n:]), np.minimum(along[:n], along[n:])

@@ -212,7 +212,7 @@ def gather(
     centroids = np.array([c.centroid for c in clusters], dtype=np.float64)
     claimed = claims(np.where(np.isfinite(centroids), centroids, np.inf), box_min, box_max, margin)
     exclusive = claimed & (claimed.sum(axis=0) == 1)[None, :]
-    groups = [np.flatnonzero(row) for row in exclusive if row.sum() >= 2]
+    groups = [np.flatnonzero(exclusive[row]) for row in np.flatnonzero(exclusive.sum(axis=1) >= 2)]
     if gap >= 0.0:
         lo = np.array([c.bbox_min for c in clusters], dtype=np.float64)
         hi = np.array([c.bbox_max for c in clusters], dtype=np.float64)

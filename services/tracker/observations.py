@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -31,11 +32,11 @@ class Observations:
     density: NDArray  # (m,)
     volume: NDArray
 
-    @property
+    @cached_property
     def extent(self) -> NDArray:
         return self.bbox_max - self.bbox_min
 
-    @property
+    @cached_property
     def anchor(self) -> NDArray:
         """(m, 3) the point on the side in view."""
         return self.anchors[np.arange(len(self)), self.side]
@@ -55,16 +56,13 @@ def observe(clusters: list[Cluster], pose: NDArray, edge: float) -> tuple[Observ
     or filtered, and one bad row would poison the whole batched filter, so it is dropped here.
     """
     n = len(clusters)
-    geometry = np.empty((n, 9))
-    colour = np.empty((n, 6))
-    scalars = np.empty((n, 2))
-    for i, c in enumerate(clusters):
-        geometry[i, 0:3] = c.centroid
-        geometry[i, 3:6] = c.bbox_min
-        geometry[i, 6:9] = c.bbox_max
-        colour[i, 0:3] = c.color_mean_rgb
-        colour[i, 3:6] = c.color_mean_hsl
-        scalars[i] = (c.density, c.volume)
+
+    def stacked(name: str, width: int) -> NDArray:
+        return np.array([getattr(c, name) for c in clusters], dtype=np.float64).reshape(n, width)
+
+    geometry = np.hstack([stacked("centroid", 3), stacked("bbox_min", 3), stacked("bbox_max", 3)])
+    colour = np.hstack([stacked("color_mean_rgb", 3), stacked("color_mean_hsl", 3)])
+    scalars = np.hstack([stacked("density", 1), stacked("volume", 1)])
     finite = np.isfinite(geometry).all(axis=1) & np.isfinite(colour).all(axis=1) & np.isfinite(scalars).all(axis=1)
     keep = np.flatnonzero(finite)
     points, side, far, narrow = anchors([clusters[i] for i in keep.tolist()], geometry[keep, 0:3], pose, edge)
