@@ -212,6 +212,7 @@ class TrackerConfig:
     reshape_m: float = 3.0  # box grown or shrunk by more (m, x or y): a not-yet-moving track's speed window restarts
     narrow_across_m: float = 2.0  # narrower across its line of sight (m): may be labelled by its speed across; 0 = off
     revive_restart_m: float = 1.0  # a ghost found this far (m) from its prediction restarts its speed window; 0: off
+    merge_growth_m: float = 2.0  # cluster wider by more (m, x or y) than its track's smoothed extent: box kept; 0: off
 
 
 @dataclass

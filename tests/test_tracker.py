@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import colorsys
+import dataclasses
 
 import numpy as np
 import pytest
@@ -17,7 +18,7 @@ from services.tracker import Tracker, kalman
 from services.tracker import anchor as anchor_module
 from services.tracker.anchor import anchors
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
-from services.tracker.fragments import components, footprint, in_contact, merge, near_boxes
+from services.tracker.fragments import Sight, Standing, components, footprint, in_contact, merge, near_boxes
 from services.tracker.motion_window import speed_bound
 
 EDGE = 0.25
@@ -390,8 +391,12 @@ def box_voxels(lo: tuple[float, float, float], hi: tuple[float, float, float]) -
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3).astype(np.int32)
 
 
-def surface(lo: tuple[float, float, float], hi: tuple[float, float, float], cid: int = 0,
-            rgb: tuple[float, float, float] = (0.6, 0.2, 0.2)) -> Cluster:
+def surface(
+    lo: tuple[float, float, float],
+    hi: tuple[float, float, float],
+    cid: int = 0,
+    rgb: tuple[float, float, float] = (0.6, 0.2, 0.2),
+) -> Cluster:
     """A cluster made of the voxels filling the box ``lo``..``hi``: centroid and box from its voxels."""
     return of_voxels(box_voxels(lo, hi), cid, rgb)
 
@@ -418,8 +423,13 @@ def test_anchor_stays_on_the_faces_in_view_while_the_far_side_grows() -> None:
     assert abs(short.centroid[0] - long.centroid[0]) > 1.5
 
 
-def smeared(lo: tuple[float, float, float], hi: tuple[float, float, float], core_points: int,
-            fringe_points: int | None = 1, fringe_m: float = 1.0) -> Cluster:
+def smeared(
+    lo: tuple[float, float, float],
+    hi: tuple[float, float, float],
+    core_points: int,
+    fringe_points: int | None = 1,
+    fringe_m: float = 1.0,
+) -> Cluster:
     """A box's voxels with ``core_points`` each, behind a fringe ``fringe_m`` deep of voxels holding ``fringe_points``.
 
     The fringe is stereo smear along the line of sight; ``None`` gives a cluster from a recording
@@ -427,9 +437,14 @@ def smeared(lo: tuple[float, float, float], hi: tuple[float, float, float], core
     """
     core, fringe = surface(lo, hi), surface((lo[0] - fringe_m, lo[1], lo[2]), (lo[0], hi[1], hi[2]))
     points = np.concatenate([np.full(core.voxel_count, core_points), np.full(fringe.voxel_count, fringe_points or 0)])
-    return Cluster(**{**vars(core), "voxels": np.concatenate([core.voxels, fringe.voxels]),
-                      "voxel_count": core.voxel_count + fringe.voxel_count,
-                      "voxel_points": points.astype(np.int32) if fringe_points is not None else np.zeros(0, np.int32)})
+    return Cluster(
+        **{
+            **vars(core),
+            "voxels": np.concatenate([core.voxels, fringe.voxels]),
+            "voxel_count": core.voxel_count + fringe.voxel_count,
+            "voxel_points": points.astype(np.int32) if fringe_points is not None else np.zeros(0, np.int32),
+        }
+    )
 
 
 def test_a_narrow_cluster_is_followed_at_its_points_median_range_a_wide_one_at_its_near_face() -> None:
@@ -488,8 +503,9 @@ def walker_and_post(tracker: Tracker, range_m: float, speed: float) -> tuple[lis
     walker_moving, post_moving = [], []
     for k in range(25):
         smear, smear_post = 0.6 + 2.4 * abs(np.sin(1.2 * k)), 0.6 + 2.4 * abs(np.sin(1.2 * k + 1.0))
-        walker = cluster(0, (range_m + smear / 2, -3.0 + speed * 0.1 * k, 0.9), size=(smear, 0.6, 1.8),
-                         rgb=(0.2, 0.6, 0.2))
+        walker = cluster(
+            0, (range_m + smear / 2, -3.0 + speed * 0.1 * k, 0.9), size=(smear, 0.6, 1.8), rgb=(0.2, 0.6, 0.2)
+        )
         post = cluster(1, (range_m + smear_post / 2, 3.0, 1.5), size=(smear_post, 0.3, 3.0), rgb=(0.3, 0.3, 0.6))
         by_side = sorted(step(tracker, k, [walker, post]).obstacles, key=lambda o: o.centroid[1])
         assert len(by_side) == 2, k
@@ -652,6 +668,52 @@ def test_walkers_crossing_abreast_whose_smears_touch_get_a_track_each(thin_m: fl
         assert len(tracked) == 1  # gathered into the blob's track, frame after frame
 
 
+def smear_along_sight(range_m: float, bearing: float, across_m: float, length_m: float = 3.0) -> np.ndarray:
+    """The voxels of a walker 0.5 m wide and 1.75 m tall, smeared ``length_m`` along the line of sight."""
+    ray, normal = np.array([np.cos(bearing), np.sin(bearing)]), np.array([-np.sin(bearing), np.cos(bearing)])
+    s, w, z = np.meshgrid(np.arange(0, length_m, 0.1), np.arange(0, 0.5, 0.1), np.arange(0, 1.75, 0.1), indexing="ij")
+    xy = (range_m + s.ravel())[:, None] * ray + (across_m + w.ravel())[:, None] * normal
+    points = np.column_stack([xy, z.ravel()])
+    return np.unique(np.floor(points / EDGE).astype(np.int32), axis=0)
+
+
+def test_a_walker_smeared_along_an_oblique_line_of_sight_is_upright_seen_from_the_camera() -> None:
+    # at 30 degrees off the axis a 3 m smear makes a 2.6 x 2.0 m box: by its box no person
+    walker = of_voxels(smear_along_sight(20.0, np.radians(30.0), 0.0))
+    extent = walker.bbox_max - walker.bbox_min
+    assert extent[0:2].min() > 1.5
+    standing, on_floor = Config().tracker, np.array([True])
+    rule = Standing(standing.fragment_standing_m, standing.upright_m, standing.upright_thin_m)
+    assert not rule.whole([walker], on_floor)[0]
+    assert rule.whole([walker], on_floor, Sight(np.zeros(3), EDGE))[0]
+    assert Sight(np.zeros(3), EDGE).width(walker.voxels) < 1.0
+
+
+def test_walkers_abreast_on_an_oblique_line_of_sight_get_a_track_each() -> None:
+    # synthetic urban: a walker on the pavement 1 m in front of a wall at 20-30 m, his smear
+    # touching the wall's; here two walkers abreast, 30 degrees off the axis, their smears touching
+    tracker = new_tracker()
+    bearing = np.radians(20.0)
+
+    def counted(voxels: np.ndarray, cid: int, rgb: tuple[float, float, float]) -> Cluster:
+        c = of_voxels(voxels, cid, rgb)
+        return dataclasses.replace(c, voxel_points=np.full(c.voxel_count, 8, dtype=np.int32))
+
+    for k in range(6):
+        both = np.vstack(
+            [smear_along_sight(20.0, bearing, -0.15 * k, 3.5), smear_along_sight(21.0, bearing, 0.6 - 0.15 * k, 3.5)]
+        )
+        out = step(tracker, k, [counted(np.unique(both, axis=0), 0, (0.5, 0.5, 0.5))])
+    for k in range(6, 22):
+        near, far = (
+            smear_along_sight(20.0, bearing, -0.15 * k, 3.5),
+            smear_along_sight(21.0, bearing, 0.6 - 0.15 * k, 3.5),
+        )
+        out = step(tracker, k, [counted(near, 0, (0.6, 0.2, 0.2)), counted(far, 1, (0.2, 0.2, 0.6))])
+    tracked = [o for o in out.obstacles if o.state == "tracked"]
+    assert len(tracked) == 2 and all(o.moving for o in tracked)
+
+
 def test_a_car_standing_in_two_pieces_of_its_length_stays_one_track() -> None:
     # a car in two colours split across its length: both pieces stand and are as tall as a walker,
     # but each is the car's width across, so they are gathered as before
@@ -770,3 +832,25 @@ def test_a_ghost_found_again_metres_from_its_prediction_starts_its_speed_window_
     assert [o.state for o in out.obstacles] == ["tracked"]
     restarted = found_m > Config().tracker.revive_restart_m
     assert tracker.tracks.window_n.tolist() == ([1] if restarted else [4])
+
+
+@pytest.mark.parametrize("growth_m", [0.0, 2.0])
+def test_a_car_whose_cluster_takes_in_a_neighbour_keeps_its_own_box(growth_m: float) -> None:
+    # synthetic slope seed 10: a lead car's cluster joined an oncoming car's for one frame, 3 m
+    # wider, and the obstacle was reported on the pair's centroid, 2.2 m sideways
+    tracker = new_tracker(merge_growth_m=growth_m)
+    for k in range(8):
+        x = 20.0 + 1.0 * k
+        out = step(tracker, k, [surface((x, -1.0, 0.25), (x + 4.5, 1.0, 1.5))])
+    (car,) = out.obstacles
+    x = 28.0
+    (merged,) = step(tracker, 8, [surface((x, -1.0, 0.25), (x + 4.5, 4.25, 1.5))]).obstacles
+    assert merged.id == car.id
+    sideways = merged.centroid[1] - car.centroid[1]
+    if growth_m > 0.0:
+        assert abs(sideways) < 0.3 and merged.bbox_max[1] < 1.5
+        assert merged.centroid[0] - car.centroid[0] == pytest.approx(1.0, abs=0.3)  # carried by the filter
+    else:
+        assert sideways > 1.0  # the pair's centroid
+    (alone,) = step(tracker, 9, [surface((29.0, -1.0, 0.25), (33.5, 1.0, 1.5))]).obstacles
+    assert abs(alone.centroid[1]) < 0.3 and alone.moving

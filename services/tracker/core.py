@@ -38,7 +38,7 @@ from common.config import Config, VolumeConfig
 from common.messages import Cluster, Clusters, EgoMotion, Obstacles
 from services.tracker import kalman, motion_window
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
-from services.tracker.fragments import APART_BY_BOX, Standing, claims, gather, stand_apart
+from services.tracker.fragments import APART_BY_BOX, Sight, Standing, claims, gather, stand_apart
 from services.tracker.measurement import cut_covariance, stereo_covariance, visibility_covariance
 from services.tracker.motion_state import (
     SLIDE_SMOOTHING,
@@ -96,6 +96,7 @@ class Tracker:
         reshape_m: float = float("inf"),
         narrow_across_m: float = 0.0,
         revive_restart_m: float = 0.0,
+        merge_growth_m: float = 0.0,
         upright_sigma_k: float | None = None,
     ) -> None:
         self.weights = weights
@@ -118,6 +119,7 @@ class Tracker:
         self.reshape_m = reshape_m
         self.narrow_across_m = narrow_across_m
         self.revive_restart_m = revive_restart_m
+        self.merge_growth_m = merge_growth_m
         self.upright_sigma_k = hysteresis.sigma_k if upright_sigma_k is None else upright_sigma_k
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.tracks = TrackTable()
@@ -152,6 +154,7 @@ class Tracker:
             reshape_m=t.reshape_m,
             narrow_across_m=t.narrow_across_m,
             revive_restart_m=t.revive_restart_m,
+            merge_growth_m=t.merge_growth_m,
             upright_sigma_k=t.upright_sigma_k,
         )
 
@@ -164,14 +167,15 @@ class Tracker:
         trusted = self._observe_ego(ego)
         pose = self._placement_pose(clusters, ego)
         self._predict(dt)
-        pieces = self._gather(clusters)
+        sight = Sight(pose[0:3, 3], clusters.voxel_edge)
+        pieces = self._gather(clusters, sight)
         obs = self._observe(pieces, pose, clusters.voxel_edge)
         r = self._cluster_cov(obs, pose, clusters.voxel_edge)
         rows, cols = self._associate(obs, r)
         if trusted:
             self._correct(rows, obs.take(cols), r[cols])
         piece_of = {int(i): pieces[int(obs.index[j])] for i, j in zip(rows, cols, strict=True)}
-        self._advance_queues(rows, elapsed, piece_of)
+        self._advance_queues(rows, elapsed, piece_of, sight)
         fresh = np.ones(len(obs), dtype=bool)
         fresh[cols] = False
         self._spawn(obs.take(fresh), r[fresh])
@@ -222,7 +226,7 @@ class Tracker:
         self.ego.observe(ego.pose, trusted, ego.world_epoch, ego.stamp_ns)
         return trusted
 
-    def _gather(self, clusters: Clusters) -> list[Cluster]:
+    def _gather(self, clusters: Clusters, sight: Sight) -> list[Cluster]:
         """The clusters with the pieces of one known object merged (fragments.py)."""
         t = self.tracks
         known = t.queue != ACCEPTANCE
@@ -231,7 +235,7 @@ class Tracker:
         shift = (t.x[known, 0:3] + t.offset[known]) - t.centroid[known]
         lo, hi = t.bbox_min[known] + shift, t.bbox_max[known] + shift
         margin, edge = self.fragment_margin, clusters.voxel_edge
-        return gather(clusters.clusters, lo, hi, margin, edge, self.fragment_gap, self.standing)
+        return gather(clusters.clusters, lo, hi, margin, edge, self.fragment_gap, self.standing, sight)
 
     def _observe(self, clusters: list[Cluster], pose: NDArray, edge: float) -> Observations:
         obs, dropped = observe(clusters, pose, edge)
@@ -315,9 +319,15 @@ class Tracker:
         motion_window.push(t.window_far, t.window_t.copy(), t.window_n.copy(), rows, anchor + obs.far, self._clock)
         t.nis[rows] += self.noise_adaptation * (np.where(jump, t.nis[rows], nis) - t.nis[rows])
         t.x[rows], t.p[rows] = x, p
-        t.offset[rows] = obs.centroid - x[:, 0:3]
-        t.centroid[rows], t.bbox_min[rows], t.bbox_max[rows] = obs.centroid, obs.bbox_min, obs.bbox_max
-        t.volume[rows] = obs.volume
+        # a cluster suddenly wider than the object has been (its smoothed extent) has taken in a
+        # neighbour: the obstacle keeps its own box and centroid, carried by the filter, rather
+        # than the merged pair's (slope-s10: a lead car reported 2.2 m sideways, on an oncoming
+        # car's box, for one frame; docs/results/tracking.md, "Session 21")
+        own = ~self._swallowed(rows, obs)
+        kept = rows[own]
+        t.offset[kept] = obs.centroid[own] - x[own, 0:3]
+        t.centroid[kept], t.bbox_min[kept], t.bbox_max[kept] = obs.centroid[own], obs.bbox_min[own], obs.bbox_max[own]
+        t.volume[kept] = obs.volume[own]
         a = self.smoothing
         t.rgb[rows] += a * (obs.rgb - t.rgb[rows])
         hue_step = (obs.hsl[:, 0] - t.hsl[rows, 0] + 0.5) % 1.0 - 0.5  # the short way round
@@ -326,6 +336,14 @@ class Tracker:
         t.extent[rows] += a * (obs.extent - t.extent[rows])
         t.extent_slow[rows] += SLIDE_SMOOTHING * (obs.extent - t.extent_slow[rows])
         t.density[rows] += a * (obs.density - t.density[rows])
+
+    def _swallowed(self, rows: NDArray, obs: Observations) -> NDArray:
+        """Which tracked rows' clusters outgrow their smoothed extent by over ``merge_growth_m`` (x or y)."""
+        t = self.tracks
+        if self.merge_growth_m <= 0.0:
+            return np.zeros(len(rows), dtype=bool)
+        growth = (obs.extent - t.extent[rows])[:, 0:2].max(axis=1)
+        return (growth > self.merge_growth_m) & (t.queue[rows] == TRACKED)
 
     def _turn_sides(self, rows: NDArray, obs: Observations) -> None:
         """Follow the side face now in view, shifting the state by that face's offset on this cluster."""
@@ -341,15 +359,15 @@ class Tracker:
         motion_window.shift(t.window_far, rows_turned, now - before)
         t.side[rows_turned] = obs.side[turned]
 
-    def _advance_queues(self, rows: NDArray, elapsed: int, piece_of: dict[int, Cluster]) -> None:
+    def _advance_queues(self, rows: NDArray, elapsed: int, piece_of: dict[int, Cluster], sight: Sight) -> None:
         seen = np.zeros(len(self.tracks), dtype=bool)
         seen[rows] = True
-        held = self._inside_known(seen, piece_of)
+        held = self._inside_known(seen, piece_of, sight)
         keep = advance(self.tracks, seen, elapsed, self.accept_frames, self.ghost_frames, held, self.accept_misses)
         self.counters["tracks_dropped"] += int((~keep).sum())
         self.tracks.keep(keep)
 
-    def _inside_known(self, seen: NDArray, piece_of: dict[int, Cluster]) -> NDArray:
+    def _inside_known(self, seen: NDArray, piece_of: dict[int, Cluster], sight: Sight) -> NDArray:
         """Acceptance tracks whose centroid lies in the box of a tracked object seen this frame.
 
         Such a track is a piece the merge of fragments.py missed (it was outside the predicted
@@ -366,7 +384,7 @@ class Tracker:
         known_rows, young_rows = np.flatnonzero(known), np.flatnonzero(young)
         for k, y in zip(*np.nonzero(inside), strict=True):
             whole, piece = piece_of.get(int(known_rows[k])), piece_of.get(int(young_rows[y]))
-            if whole is not None and piece is not None and stand_apart(whole, piece, self.standing):
+            if whole is not None and piece is not None and stand_apart(whole, piece, self.standing, sight):
                 inside[k, y] = False
         held[young] = inside.any(axis=0)
         return held

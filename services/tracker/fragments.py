@@ -158,17 +158,42 @@ class Standing:
             return np.zeros(len(extent), dtype=bool)
         return (extent[:, 2] >= self.upright_m) & (extent[:, 0:2].min(axis=1) <= self.thin_m)
 
-    def whole(self, pieces: list[Cluster], standing: NDArray) -> NDArray:
-        """Which standing pieces are a whole upright object by their boxes."""
+    def whole(self, pieces: list[Cluster], standing: NDArray, sight: Sight | None = None) -> NDArray:
+        """Which standing pieces are a whole upright object: by their boxes, or seen from ``sight``.
+
+        Seen from the camera, a piece is as wide as its voxels spread across the line of sight:
+        a walker's smear along that line makes his box as long as a car's (3-4 m at 20-30 m) and
+        a box test let a facade's track take him in.
+        """
         extent = np.array([np.asarray(p.bbox_max) - np.asarray(p.bbox_min) for p in pieces], dtype=np.float64)
+        if sight is not None:
+            for i, p in enumerate(pieces):
+                if standing[i] and extent[i, 2] >= self.upright_m and len(p.voxels):
+                    extent[i, 0:2] = sight.width(np.asarray(p.voxels))
         return standing & self.upright(extent)
+
+
+@dataclass(frozen=True)
+class Sight:
+    """Where the camera stood, and the voxel edge: what a piece's width across its line of sight needs."""
+
+    eye: NDArray  # world position of the camera (3,)
+    edge: float
+
+    def width(self, voxels: NDArray) -> float:
+        """How far the voxels spread (5-95 %) across the line from the eye to their middle (m)."""
+        xy = (np.asarray(voxels, dtype=np.float64).reshape(-1, 3)[:, 0:2] + 0.5) * self.edge
+        ray = xy.mean(axis=0) - self.eye[0:2]
+        ray /= max(float(np.linalg.norm(ray)), 1e-9)
+        lo, hi = np.percentile(xy @ np.array([-ray[1], ray[0]]), [5.0, 95.0])
+        return float(hi - lo)
 
 
 #: standing pieces not told apart: boxes alone decide.
 APART_BY_BOX = Standing()
 
 
-def standing_links(pieces: list[Cluster], near: NDArray, standing: Standing) -> NDArray:
+def standing_links(pieces: list[Cluster], near: NDArray, standing: Standing, sight: Sight | None = None) -> NDArray:
     """Which of the ``near`` links a group of pieces keeps when two standing on its floor must touch.
 
     A piece whose box reaches down to within ``standing.floor_m`` of the group's lowest piece stands on
@@ -188,13 +213,13 @@ def standing_links(pieces: list[Cluster], near: NDArray, standing: Standing) -> 
     on_floor = bottom <= bottom.min() + standing.floor_m
     both = near & on_floor[:, None] & on_floor[None, :]
     links = near & (~both | in_contact([footprint(v) for v in voxels], both))
-    whole = standing.whole(pieces, on_floor)
+    whole = standing.whole(pieces, on_floor, sight)
     return links & ~(whole[:, None] & whole[None, :] & ~np.eye(len(pieces), dtype=bool))
 
 
-def stand_apart(whole: Cluster, piece: Cluster, standing: Standing) -> bool:
+def stand_apart(whole: Cluster, piece: Cluster, standing: Standing, sight: Sight | None = None) -> bool:
     """Whether a piece near a known object's cluster is an object of its own (standing_links)."""
-    return not standing_links([whole, piece], np.ones((2, 2), dtype=bool), standing)[0, 1]
+    return not standing_links([whole, piece], np.ones((2, 2), dtype=bool), standing, sight)[0, 1]
 
 
 def gather(
@@ -205,6 +230,7 @@ def gather(
     edge: float,
     gap: float = -1.0,
     standing: Standing = APART_BY_BOX,
+    sight: Sight | None = None,
 ) -> list[Cluster]:
     """The clusters with each track's exclusive pieces merged; order otherwise kept."""
     if len(clusters) < 2 or len(box_min) == 0:
@@ -218,7 +244,7 @@ def gather(
         hi = np.array([c.bbox_max for c in clusters], dtype=np.float64)
         parted: list[NDArray] = []
         for g in groups:
-            links = standing_links([clusters[i] for i in g], near_boxes(lo[g], hi[g], gap), standing)
+            links = standing_links([clusters[i] for i in g], near_boxes(lo[g], hi[g], gap), standing, sight)
             parted += [g[part] for part in components(links) if len(part) >= 2]
         groups = parted
     if not groups:
