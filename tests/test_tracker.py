@@ -413,25 +413,6 @@ def of_voxels(voxels: np.ndarray, cid: int = 0, rgb: tuple[float, float, float] 
     )  # fmt: skip
 
 
-def test_per_cluster_percentiles_are_those_of_each_cluster_sorted_alone() -> None:
-    rng = np.random.default_rng(3)
-    counts = np.array([1, 7, 0, 40, 216])
-    starts = np.cumsum(counts) - counts
-    values = rng.normal(0.0, 3.0, counts.sum()).round(1)  # ties, as voxel coordinates have
-    weights = rng.integers(1, 9, counts.sum()).astype(np.float64)
-    by_voxels, by_points = np.array([0.05, 0.95]), np.array([0.05, 0.5, 0.95])
-    out = anchor_module._ranked(values, weights, starts, counts, by_voxels, by_points)
-    for i, (start, count) in enumerate(zip(starts, counts, strict=True)):
-        if count == 0:
-            continue
-        order = np.argsort(values[start : start + count], kind="stable")
-        ordered, running = values[start : start + count][order], np.cumsum(weights[start : start + count][order])
-        for k, share in enumerate(by_voxels):
-            assert out[k, i] == ordered[int(np.ceil(share * count)) - 1 if share * count >= 1 else 0]
-        for k, share in enumerate(by_points):
-            assert out[2 + k, i] == ordered[np.searchsorted(running, share * running[-1])]
-
-
 def test_anchor_stays_on_the_faces_in_view_while_the_far_side_grows() -> None:
     # a parked car right of the road: its rear (near x) and its road side (high y) face the camera
     short, long = surface((20.0, -4.0, 0.25), (21.0, -2.25, 1.5)), surface((20.0, -4.0, 0.25), (24.5, -2.25, 1.5))

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -57,41 +56,6 @@ def _points_per_voxel(clusters: list[Cluster], counts: NDArray) -> tuple[NDArray
     return np.where(np.repeat(counted, counts), weights + 1e-3, weights), counted
 
 
-@numba.njit(cache=True)
-def _ranked(
-    values: NDArray, weights: NDArray, starts: NDArray, counts: NDArray, by_voxels: NDArray, by_points: NDArray
-) -> NDArray:
-    """Per cluster (n,), the first value (ascending) whose running count, then running points, reach each share.
-
-    One sort per cluster serves both: the faces count voxels, a narrow cluster's range and width
-    its points. Compiled: numpy, over all clusters at once, needed a sort of every voxel by
-    (cluster, value) and a dozen passes over them (``anchors`` 0.36 -> 0.29 ms for 50 clusters).
-    """
-    n_voxels, n_points = by_voxels.shape[0], by_points.shape[0]
-    out = np.zeros((n_voxels + n_points, starts.shape[0]))
-    for i in range(starts.shape[0]):
-        count, start = counts[i], starts[i]
-        if count == 0:
-            continue
-        segment = values[start : start + count]
-        order = np.argsort(segment, kind="mergesort")
-        for k in range(n_voxels):
-            j = min(max(int(np.ceil(by_voxels[k] * count)) - 1, 0), count - 1)
-            out[k, i] = segment[order[j]]
-        total = 0.0
-        for m in range(count):
-            total += weights[start + m]
-        for k in range(n_points):
-            target, running, j = by_points[k] * total, 0.0, count - 1
-            for m in range(count):
-                running += weights[start + order[m]]
-                if running >= target:
-                    j = m
-                    break
-            out[n_voxels + k, i] = segment[order[j]]
-    return out
-
-
 def anchors(
     clusters: list[Cluster], centroids: NDArray, pose: NDArray, edge: float
 ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
@@ -103,8 +67,9 @@ def anchors(
     centroid for every side. The far-end shift moves that point to the far end along the
     vehicle's x (the high percentile), the other end of the object: a rigid object's two ends move
     together, a box growing or uncovered at one end moves only that end (motion_window.py).
-    A percentile is the first voxel whose running count (or running points) reaches its share
-    (``_ranked``): per-cluster ``np.quantile`` calls cost 25 ms for 50 clusters.
+    A percentile is the first voxel whose running count (or running points) reaches its share,
+    taken for every cluster at once from one sort of all voxels by (cluster, value): per-cluster
+    ``np.quantile`` calls cost 25 ms for 50 clusters.
     """
     n = len(clusters)
     out = np.repeat(np.asarray(centroids, dtype=np.float64)[:, None, :], 3, axis=1)
@@ -119,13 +84,32 @@ def anchors(
     # vehicle x, y of every voxel; np.dot with the scale folded in: ``@`` on (n, 3) x (3, 2) is 4x slower here
     axes = np.ascontiguousarray(rotation[:, 0:2])
     local = np.dot(voxels, edge * axes) + (0.5 * edge - origin) @ axes
+    label = np.repeat(np.arange(n), counts)
     has = counts > 0
-    starts = np.cumsum(counts) - counts
+    starts = np.minimum(np.concatenate([[0], np.cumsum(counts)[:-1]]), len(voxels) - 1)
+    last = np.maximum(np.cumsum(counts) - 1, starts)
+
     weights, counted = _points_per_voxel(clusters, counts)
+    by_count = np.arange(1.0, len(voxels) + 1.0)
+
+    def ranked(values: NDArray, by_voxels: tuple[float, ...], by_points: tuple[float, ...]) -> list[NDArray]:
+        """Per cluster, the first value (ascending) whose running count, then running points, reach each share.
+
+        One sort serves both: the faces count voxels, a narrow cluster's range and width its points.
+        """
+        low = values.min()
+        order = np.argsort(label * (float(values.max() - low) + 1.0) + (values - low), kind="stable")
+        ordered = values[order]
+        out = []
+        for cum, shares in ((by_count, by_voxels), (np.cumsum(weights[order]), by_points)):
+            before = np.where(starts > 0, cum[np.maximum(starts - 1, 0)], 0.0)
+            total = cum[last] - before
+            out += [ordered[np.clip(np.searchsorted(cum, before + share * total), starts, last)] for share in shares]
+        return out
+
     q = FACE_PERCENTILE / 100.0
-    faces = np.array([q, 1.0 - q])
-    near_x, far_x, range_x = _ranked(local[:, 0], weights, starts, counts, faces, np.array([0.5]))
-    y_lo, y_hi, width_lo, width_hi = _ranked(local[:, 1], weights, starts, counts, faces, np.array([0.05, 0.95]))
+    near_x, far_x, range_x = ranked(local[:, 0], (q, 1.0 - q), (0.5,))
+    y_lo, y_hi, width_lo, width_hi = ranked(local[:, 1], (q, 1.0 - q), (0.05, 0.95))
     narrow[:] = counted & (width_hi - width_lo < NARROW_M) & has
     x = np.where(narrow, range_x, near_x)
     z = (out[:, 0] - origin) @ rotation[:, 2]

@@ -40,11 +40,7 @@ sight. Their footprints touched, they were gathered into one track, and the othe
 (synthetic urban and crossing, tuning seeds: 52 walker-frames). A standing piece as tall as a
 person and no wider than one (``Standing.upright_m``, ``thin_m``) is a whole object: two such are
 never gathered, whatever touches. A car's pieces are wider, and a walker's legs and coat are
-not each that tall (docs/results/tracking.md, "Session 20"). How wide a piece is, is how far its
-voxels spread across the line of sight from the camera (``Sight``), not its box: at 20-30 m a
-walker's smear along an oblique line of sight gives him a 3.8 x 1.9 m box. Moving recall, tracker
-replays: held-out seeds 7-10 73.0 -> 75.0 %, crossing's 56 -> 61 % (docs/results/tracking.md,
-"Session 21").
+not each that tall (docs/results/tracking.md, "Session 20").
 """
 
 from __future__ import annotations
