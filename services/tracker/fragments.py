@@ -60,10 +60,11 @@ NDArray = npt.NDArray[Any]
 
 def claims(centroids: NDArray, box_min: NDArray, box_max: NDArray, margin: float) -> NDArray:
     """(tracks x clusters) True where the cluster's centroid lies in the track's grown box."""
-    lo = box_min[:, None, :] - margin
-    hi = box_max[:, None, :] + margin
-    c = centroids[None, :, :]
-    return np.all((c >= lo) & (c <= hi), axis=2)
+    lo, hi = box_min - margin, box_max + margin
+    inside = np.ones((len(lo), len(centroids)), dtype=bool)
+    for axis in range(3):  # one comparison per axis: np.all over a trailing axis of 3 took 80 us for 50 x 50
+        inside &= (centroids[None, :, axis] >= lo[:, None, axis]) & (centroids[None, :, axis] <= hi[:, None, axis])
+    return inside
 
 
 def _pooled_points(pieces: list[Cluster]) -> np.ndarray:
