@@ -199,6 +199,7 @@ class TrackerConfig:
     range_noise_per_m2: float = 0.0005  # added std along the ray per squared metre of range (stereo)
     initial_speed_std: float = 5.0  # horizontal velocity std of a new track (m/s)
     initial_vertical_speed_std: float = 0.3  # its vertical velocity std (m/s)
+    upright_initial_speed_std: float = 3.5  # ... a new narrow upright one's (walker, cyclist, pole)
     noise_adaptation: float = 0.0  # weight of the newest normalised innovation in a track's noise scale (0 = off)
     appearance_smoothing: float = 0.5  # weight of the newest cluster in a track's colour/size/density
     frame_period_s: float = 0.1  # time step when stamps cannot give one

@@ -854,3 +854,25 @@ def test_a_car_whose_cluster_takes_in_a_neighbour_keeps_its_own_box(growth_m: fl
         assert sideways > 1.0  # the pair's centroid
     (alone,) = step(tracker, 9, [surface((29.0, -1.0, 0.25), (33.5, 1.0, 1.5))]).obstacles
     assert abs(alone.centroid[1]) < 0.3 and alone.moving
+
+
+def test_a_new_walker_track_starts_with_a_walkers_speed_prior_and_a_car_with_a_cars() -> None:
+    tracker = new_tracker()
+    walker = surface((20.0, -5.0, 0.0), (20.5, -4.5, 1.75))
+    car = surface((15.0, 2.0, 0.0), (19.5, 4.0, 1.5))
+    counted = [dataclasses.replace(c, voxel_points=np.full(c.voxel_count, 8, dtype=np.int32)) for c in (walker, car)]
+    step(tracker, 0, counted)
+    cfg = Config().tracker
+    assert np.sqrt(tracker.tracks.p[:, 3, 3]).tolist() == pytest.approx(
+        [cfg.upright_initial_speed_std, cfg.initial_speed_std]
+    )
+    # so a walker's first change of cluster (a smear piece beside him, then him, 1 m apart) is
+    # read as less speed
+    first: list[float] = []
+    for std in (cfg.upright_initial_speed_std, cfg.initial_speed_std):
+        tracker = new_tracker(upright_initial_speed_std=std)
+        for k, y in enumerate((-4.0, -5.0)):
+            piece = surface((20.0, y, 0.0), (20.5, y + 0.5, 1.75))
+            out = step(tracker, k, [dataclasses.replace(piece, voxel_points=np.full(piece.voxel_count, 8, np.int32))])
+        first.append(out.obstacles[0].speed)
+    assert first[0] < first[1] - 0.5

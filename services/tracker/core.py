@@ -97,6 +97,7 @@ class Tracker:
         narrow_across_m: float = 0.0,
         revive_restart_m: float = 0.0,
         merge_growth_m: float = 0.0,
+        upright_speed_std: float | None = None,
         upright_sigma_k: float | None = None,
     ) -> None:
         self.weights = weights
@@ -120,6 +121,7 @@ class Tracker:
         self.narrow_across_m = narrow_across_m
         self.revive_restart_m = revive_restart_m
         self.merge_growth_m = merge_growth_m
+        self.upright_speed_std = upright_speed_std
         self.upright_sigma_k = hysteresis.sigma_k if upright_sigma_k is None else upright_sigma_k
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.tracks = TrackTable()
@@ -155,6 +157,7 @@ class Tracker:
             narrow_across_m=t.narrow_across_m,
             revive_restart_m=t.revive_restart_m,
             merge_growth_m=t.merge_growth_m,
+            upright_speed_std=t.upright_initial_speed_std,
             upright_sigma_k=t.upright_sigma_k,
         )
 
@@ -389,8 +392,21 @@ class Tracker:
         held[young] = inside.any(axis=0)
         return held
 
+    def _initial_p(self, obs: Observations, r: NDArray) -> NDArray:
+        """A new track's covariance: position as trusted as its cluster, velocity all but unknown.
+
+        A narrow upright cluster is a walker, a cyclist or a pole, none faster than ~7 m/s: with
+        the prior of a car, its second cluster's change of shape (a smear piece, then the walker)
+        was read as 5-10 m/s and stayed for 5-10 frames (docs/results/tracking.md, "Session 21").
+        """
+        p = kalman.initial_covariance(r, self.velocity_var)
+        if self.upright_speed_std is not None:
+            upright = self.standing.upright(obs.extent) & obs.narrow
+            p[upright, 3, 3] = p[upright, 4, 4] = self.upright_speed_std**2
+        return p
+
     def _spawn(self, obs: Observations, r: NDArray) -> None:
-        """New acceptance tracks: position as trusted as its cluster, velocity unknown."""
+        """New acceptance tracks (``_initial_p``)."""
         n = len(obs)
         if n == 0:
             return
@@ -406,7 +422,7 @@ class Tracker:
                 ids=ids,
                 queue=np.zeros(n, dtype=np.int8),
                 x=np.hstack([obs.anchor, np.zeros((n, 3))]),
-                p=kalman.initial_covariance(r, self.velocity_var),
+                p=self._initial_p(obs, r),
                 offset=obs.centroid - obs.anchor,
                 side=obs.side.copy(),
                 hits=np.ones(n, dtype=np.int64),
