@@ -876,3 +876,24 @@ def test_a_new_walker_track_starts_with_a_walkers_speed_prior_and_a_car_with_a_c
             out = step(tracker, k, [dataclasses.replace(piece, voxel_points=np.full(piece.voxel_count, 8, np.int32))])
         first.append(out.obstacles[0].speed)
     assert first[0] < first[1] - 0.5
+
+
+@pytest.mark.parametrize("near_only_m", [0.0, Config().tracker.upright_near_only_m])
+def test_a_walker_whose_far_smear_swings_is_confirmed_moving_by_his_near_face(near_only_m: float) -> None:
+    # the far end of a walker's cluster is the far fringe of his smear, 0.5-3 m deep from frame
+    # to frame: a line through it scatters too much to confirm anything
+    tracker = new_tracker(upright_near_only_m=near_only_m)
+    labels = []
+    for k in range(16):
+        x = 15.0 + 0.15 * k  # walking away at 1.5 m/s
+        depth = 0.5 + 2.5 * abs(np.sin(1.3 * k))
+        core, fringe = (
+            box_voxels((x, -3.0, 0.0), (x + 0.5, -2.5, 1.75)),
+            box_voxels((x + 0.5, -3.0, 0.0), (x + 0.5 + depth, -2.5, 1.75)),
+        )
+        walker = of_voxels(np.vstack([core, fringe]))
+        points = np.concatenate([np.full(len(core), 8), np.full(len(fringe), 1)]).astype(np.int32)
+        (o,) = step(tracker, k, [dataclasses.replace(walker, voxel_points=points)]).obstacles
+        labels.append(o.moving)
+    moving = sum(labels[8:])
+    assert moving >= 6 if near_only_m > 0.0 else moving <= 1

@@ -98,6 +98,7 @@ class Tracker:
         revive_restart_m: float = 0.0,
         merge_growth_m: float = 0.0,
         upright_speed_std: float | None = None,
+        near_only_m: float = 0.0,
         upright_sigma_k: float | None = None,
     ) -> None:
         self.weights = weights
@@ -122,6 +123,7 @@ class Tracker:
         self.revive_restart_m = revive_restart_m
         self.merge_growth_m = merge_growth_m
         self.upright_speed_std = upright_speed_std
+        self.near_only_m = near_only_m
         self.upright_sigma_k = hysteresis.sigma_k if upright_sigma_k is None else upright_sigma_k
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.tracks = TrackTable()
@@ -158,6 +160,7 @@ class Tracker:
             revive_restart_m=t.revive_restart_m,
             merge_growth_m=t.merge_growth_m,
             upright_speed_std=t.upright_initial_speed_std,
+            near_only_m=t.upright_near_only_m,
             upright_sigma_k=t.upright_sigma_k,
         )
 
@@ -482,8 +485,10 @@ class Tracker:
     def _window_bounds(self, k: float, direction: NDArray | None = None) -> tuple[NDArray, NDArray]:
         """The faces' own bounds on the speed (motion_window.py), whole and along ``direction``.
 
-        Each is the lower of the near and far ends' bounds; both ends go through one fit, as they
-        share times and counts.
+        Each is the lower of the near and far ends' bounds (both ends go through one fit, as they
+        share times and counts), but for a compact upright track, a walker or a cyclist with his
+        smear, whose far end is the far fringe of that smear and moves as the smear swings: the
+        near end's bound alone (docs/results/tracking.md, "Session 21").
         """
         t = self.tracks
         n = len(t)
@@ -495,4 +500,9 @@ class Tracker:
             k,
             None if direction is None else np.concatenate([direction, direction]),
         )
-        return np.minimum(whole[:n], whole[n:]), np.minimum(along[:n], along[n:])
+        extent = t.bbox_max - t.bbox_min
+        near_only = self.standing.upright(extent) & (extent[:, 0:2].max(axis=1) <= self.near_only_m)
+        return (
+            np.where(near_only, whole[:n], np.minimum(whole[:n], whole[n:])),
+            np.where(near_only, along[:n], np.minimum(along[:n], along[n:])),
+        )
