@@ -19,7 +19,7 @@ from services.tracker import anchor as anchor_module
 from services.tracker.anchor import anchors
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
 from services.tracker.fragments import Sight, Standing, components, footprint, in_contact, merge, near_boxes
-from services.tracker.motion_window import speed_bound
+from services.tracker.motion_window import speed_bounds
 
 EDGE = 0.25
 PERIOD_NS = 100_000_000
@@ -540,8 +540,7 @@ def test_a_speed_bound_along_a_direction_ignores_the_scatter_across_it() -> None
     along_y = np.stack([np.array([0.0, 0.5, -0.5, 0.5, -0.5, 0.5, -0.5, 0.0]), 1.4 * times[0]], axis=1)
     points = np.stack([along_y, along_y])
     count = np.array([8, 8])
-    both = speed_bound(points, times, count, 0.15, 1.5)
-    across = speed_bound(points, times, count, 0.15, 1.5, direction=np.array([[0.0, 1.0], [1.0, 0.0]]))
+    both, across = speed_bounds(points, times, count, 0.15, 1.5, direction=np.array([[0.0, 1.0], [1.0, 0.0]]))
     assert both[0] < 0.7  # x scatters by 0.5 m: not enough to call 1.4 m/s moving (tracker.moving_on_mps)
     assert across[0] == pytest.approx(1.4 - 1.5 * 0.15 / np.sqrt(0.42), abs=1e-6)  # only the floor's doubt along y
     assert across[1] < 0.0  # along x the same points say nothing

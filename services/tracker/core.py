@@ -4,8 +4,8 @@ Each frame: guard the input (stale, new world, gap), predict every track, merge 
 each known object (fragments.py), associate clusters greedily (Algorithm IV-C.1), correct the
 associated tracks with a Kalman filter, move tracks between the acceptance, tracked and ghost
 queues, start tracks for the clusters left over, and label each track moving or stationary from
-its speed. Everything lives in the world frame of the odometry, so a velocity is over ground;
-``velocity_rel`` subtracts the vehicle's own.
+its speed (labelling.py). Everything lives in the world frame of the odometry, so a velocity is
+over ground; ``velocity_rel`` subtracts the vehicle's own.
 
 The filter follows a cluster's faces turned to the camera (anchor.py), not its centroid, which
 slides as more or less of the object comes into view; the reported centroid is still the
@@ -14,7 +14,7 @@ changed shape (split, merged, another face in view): it re-anchors the position 
 velocity alone, since the step says nothing about how the object moves. The velocity so kept can
 be stale (learnt from a face that slid, then carried on by re-anchoring: on KITTI tracking 0001
 static structures kept 3-6 m/s for 10-20 frames), so the moving label also needs the slope of the
-track's last faces, near and far ends both, to agree (motion_window.py).
+track's last faces to agree (motion_window.py, labelling.py).
 
 Bad input is handled where it arrives and counted in ``counters``: clusters with non-finite
 geometry are dropped (``nan_clusters``); a frame whose id is not newer than the last is ignored
@@ -39,16 +39,9 @@ from common.messages import Cluster, Clusters, EgoMotion, Obstacles
 from services.tracker import kalman, motion_window
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
 from services.tracker.fragments import APART_BY_BOX, Sight, Standing, claims, gather, stand_apart
+from services.tracker.labelling import MotionLabeller
 from services.tracker.measurement import cut_covariance, stereo_covariance, visibility_covariance
-from services.tracker.motion_state import (
-    SLIDE_SMOOTHING,
-    EgoVelocity,
-    Hysteresis,
-    across_sight,
-    label,
-    slide_speed,
-    speed_and_sigma,
-)
+from services.tracker.motion_state import SLIDE_SMOOTHING, EgoVelocity, Hysteresis
 from services.tracker.observations import Observations, observe
 from services.tracker.queues import advance
 from services.tracker.report import obstacles_of
@@ -104,7 +97,6 @@ class Tracker:
         self.weights = weights
         self.accept_frames = accept_frames
         self.ghost_frames = ghost_frames
-        self.hysteresis = hysteresis
         self.accel_std = np.asarray(accel_std, dtype=np.float64)
         self.measurement_std = measurement_std
         self.range_noise_per_m2 = range_noise_per_m2
@@ -119,12 +111,12 @@ class Tracker:
         self.standing = standing
         self.accept_misses = accept_misses
         self.reshape_m = reshape_m
-        self.narrow_across_m = narrow_across_m
         self.revive_restart_m = revive_restart_m
         self.merge_growth_m = merge_growth_m
         self.upright_speed_std = upright_speed_std
-        self.near_only_m = near_only_m
-        self.upright_sigma_k = hysteresis.sigma_k if upright_sigma_k is None else upright_sigma_k
+        self.labeller = MotionLabeller(
+            hysteresis, standing, measurement_std, frame_period_s, narrow_across_m, upright_sigma_k, near_only_m
+        )
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.tracks = TrackTable()
         self.ego = EgoVelocity()
@@ -186,7 +178,7 @@ class Tracker:
         fresh[cols] = False
         self._spawn(obs.take(fresh), r[fresh])
         if trusted:
-            self._label_motion(clusters.voxel_edge, pose[0:2, 3])
+            self.tracks.moving = self.labeller.label(self.tracks, clusters.voxel_edge, pose[0:2, 3])
         return obstacles_of(self.tracks, self.ego.velocity, clusters, ego)
 
     # ------------------------------------------------------------------ input guards
@@ -447,62 +439,4 @@ class Tracker:
                 window_t=np.full((n, motion_window.SIZE), self._clock),
                 window_n=np.ones(n, dtype=np.int64),
             )
-        )
-
-    def _label_motion(self, voxel_edge: float, eye: NDArray) -> None:
-        """Moving or stationary from lower bounds on the speed (motion_state.label).
-
-        A narrow track's bounds are taken across the line of sight from ``eye`` instead, filter and
-        window alike, where together they say more than the whole velocity's: its bearing is
-        measured, its range is smeared (motion_state.Across; docs/results/tracking.md, "Session 17").
-        """
-        t = self.tracks
-        extent = t.bbox_max - t.bbox_min
-        speed, sigma = speed_and_sigma(t.x[:, 3:6], t.p[:, 3:6, 3:6])
-        slide = slide_speed(extent, t.extent_slow, self.frame_period_s, voxel_edge)
-        k = self.hysteresis.sigma_k
-        if self.narrow_across_m > 0.0 and len(t):
-            a = across_sight(
-                t.x[:, 0:2], t.x[:, 3:5], t.p[:, 3:5, 3:5], extent, t.extent_slow, eye, self.frame_period_s, voxel_edge
-            )
-            confirm, across_confirm = self._window_bounds(k, a.normal)
-            evidence = np.minimum(speed - k * sigma - slide, confirm)
-            across_evidence = np.minimum(a.speed - k * a.sigma - a.slide, across_confirm)
-            use = (a.width < self.narrow_across_m) & (across_evidence > evidence)
-            speed, sigma, slide = (
-                np.where(use, a.speed, speed),
-                np.where(use, a.sigma, sigma),
-                np.where(use, a.slide, slide),
-            )
-            confirm = np.where(use, across_confirm, confirm)
-        else:
-            confirm, _ = self._window_bounds(k)
-        # an upright track's filter doubts its speed about twice as much as its faces scatter
-        # (docs/results/tracking.md, "Session 20"), so it needs fewer of those sigmas to be moving
-        sigma_k = np.where(self.standing.upright(extent), self.upright_sigma_k, k)
-        t.moving = label(t.moving, speed, sigma, slide, t.age, self.hysteresis, confirm, sigma_k)
-
-    def _window_bounds(self, k: float, direction: NDArray | None = None) -> tuple[NDArray, NDArray]:
-        """The faces' own bounds on the speed (motion_window.py), whole and along ``direction``.
-
-        Each is the lower of the near and far ends' bounds (both ends go through one fit, as they
-        share times and counts), but for a compact upright track, a walker or a cyclist with his
-        smear, whose far end is the far fringe of that smear and moves as the smear swings: the
-        near end's bound alone (docs/results/tracking.md, "Session 21").
-        """
-        t = self.tracks
-        n = len(t)
-        whole, along = motion_window.speed_bounds(
-            np.concatenate([t.window, t.window_far]),
-            np.concatenate([t.window_t, t.window_t]),
-            np.concatenate([t.window_n, t.window_n]),
-            self.measurement_std,
-            k,
-            None if direction is None else np.concatenate([direction, direction]),
-        )
-        extent = t.bbox_max - t.bbox_min
-        near_only = self.standing.upright(extent) & (extent[:, 0:2].max(axis=1) <= self.near_only_m)
-        return (
-            np.where(near_only, whole[:n], np.minimum(whole[:n], whole[n:])),
-            np.where(near_only, along[:n], np.minimum(along[:n], along[n:])),
         )

@@ -145,7 +145,7 @@ class Standing:
     """When pieces standing side by side are objects of their own (standing_links).
 
     The shape it calls upright, a person's or a pole's, is also what the tracker follows and
-    labels by its own noise (core.py).
+    labels by its own noise (core.py, labelling.py).
     """
 
     floor_m: float = -1.0  # a box reaching this near the group's lowest stands on its floor; < 0: off

@@ -61,27 +61,17 @@ def shift(points: NDArray, rows: NDArray, offset: NDArray) -> None:
     points[rows] += offset[:, None, 0:2]
 
 
-def speed_bound(
-    points: NDArray, times: NDArray, count: NDArray, floor_std: float, k: float, direction: NDArray | None = None
-) -> NDArray:
-    """(n,) horizontal speed of the least-squares line minus ``k`` standard errors; -inf when too few.
-
-    The scatter about the line is never taken below ``floor_std`` (m), so three faces that happen
-    to line up do not claim a precise speed. With ``direction`` (n, 2 unit vectors) only the
-    motion along it counts, and only the scatter along it: a bound on the speed all the same.
-    """
-    if direction is None:
-        return speed_bounds(points, times, count, floor_std, k)[0]
-    return speed_bounds(points, times, count, floor_std, k, direction)[1]
-
-
 def speed_bounds(
     points: NDArray, times: NDArray, count: NDArray, floor_std: float, k: float, direction: NDArray | None = None
 ) -> tuple[NDArray, NDArray]:
-    """``speed_bound`` of the whole motion and along ``direction`` (-inf without one), from one line fit.
+    """(n,) horizontal speed of the least-squares line minus ``k`` standard errors, -inf when too few;
+    then the same along ``direction`` (n, 2 unit vectors; -inf without one).
 
-    The projection of the fitted line is the line fitted to the projected faces, and so are its
-    residuals, so the second bound costs a few products instead of a second fit.
+    The scatter about the line is never taken below ``floor_std`` (m), so three faces that happen
+    to line up do not claim a precise speed. Along a direction only the motion and the scatter
+    along it count: a bound on the speed all the same. The projection of the fitted line is the
+    line fitted to the projected faces, and so are its residuals, so the second bound costs a few
+    products instead of a second fit.
     """
     n, size = count.shape[0], points.shape[1]
     whole, along = np.full(n, -np.inf), np.full(n, -np.inf)

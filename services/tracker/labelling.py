@@ -1,0 +1,91 @@
+"""Moving or stationary, track by track, from two lower bounds on its speed.
+
+The filter's bound is its speed less some of its own doubt (motion_state.label); the faces' bound
+is the slope of the track's last faces less their scatter (motion_window.py). A track turns
+moving only when both clear the threshold, so a velocity the filter learnt from a face that slid
+is not believed until the faces move too. Three refinements, each measured on tracker replays
+(docs/results/tracking.md):
+
+- a narrow track (a walker, a cyclist, a pole) may be labelled by its motion across the line of
+  sight, which stereo measures by bearing, not by its smeared range ("Session 17");
+- an upright track's filter doubts its speed about twice as much as its faces scatter, so it
+  needs fewer of those sigmas ("Session 20");
+- a compact upright track is confirmed by its near face alone: its far end is the far fringe of
+  its smear, which swings by metres from frame to frame ("Session 21").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from services.tracker import motion_window
+from services.tracker.fragments import Standing
+from services.tracker.motion_state import Hysteresis, across_sight, label, slide_speed, speed_and_sigma
+from services.tracker.track import TrackTable
+
+NDArray = npt.NDArray[Any]
+
+
+@dataclass(frozen=True)
+class MotionLabeller:
+    """The label's rule and its settings (config: ``tracker.moving_*``, ``narrow_across_m``, ``upright_*``)."""
+
+    hysteresis: Hysteresis
+    standing: Standing  # what is upright: a person's or a pole's shape
+    face_std: float  # a window's scatter is never taken below this (m)
+    frame_period_s: float
+    narrow_across_m: float = 0.0  # narrower across the line of sight: may be labelled by that motion; 0: off
+    upright_sigma_k: float | None = None  # sigmas of doubt for an upright track; None: the hysteresis's
+    near_only_m: float = 0.0  # an upright track at most this long (x and y) is confirmed by its near face
+
+    def label(self, t: TrackTable, voxel_edge: float, eye: NDArray) -> NDArray:
+        """The tracks' new moving flags; ``eye`` is the camera's world position (x, y)."""
+        extent = t.bbox_max - t.bbox_min
+        speed, sigma = speed_and_sigma(t.x[:, 3:6], t.p[:, 3:6, 3:6])
+        slide = slide_speed(extent, t.extent_slow, self.frame_period_s, voxel_edge)
+        k = self.hysteresis.sigma_k
+        if self.narrow_across_m > 0.0 and len(t):
+            a = across_sight(
+                t.x[:, 0:2], t.x[:, 3:5], t.p[:, 3:5, 3:5], extent, t.extent_slow, eye, self.frame_period_s, voxel_edge
+            )
+            confirm, across_confirm = self.window_bounds(t, k, a.normal)
+            evidence = np.minimum(speed - k * sigma - slide, confirm)
+            across_evidence = np.minimum(a.speed - k * a.sigma - a.slide, across_confirm)
+            use = (a.width < self.narrow_across_m) & (across_evidence > evidence)
+            speed, sigma, slide = (
+                np.where(use, a.speed, speed),
+                np.where(use, a.sigma, sigma),
+                np.where(use, a.slide, slide),
+            )
+            confirm = np.where(use, across_confirm, confirm)
+        else:
+            confirm, _ = self.window_bounds(t, k)
+        upright_k = k if self.upright_sigma_k is None else self.upright_sigma_k
+        sigma_k = np.where(self.standing.upright(extent), upright_k, k)
+        return label(t.moving, speed, sigma, slide, t.age, self.hysteresis, confirm, sigma_k)
+
+    def window_bounds(self, t: TrackTable, k: float, direction: NDArray | None = None) -> tuple[NDArray, NDArray]:
+        """The faces' bounds on the speed, whole and along ``direction``: the lower of both ends'.
+
+        Both ends go through one fit, as they share times and counts; a compact upright track
+        takes its near end's bound alone.
+        """
+        n = len(t)
+        whole, along = motion_window.speed_bounds(
+            np.concatenate([t.window, t.window_far]),
+            np.concatenate([t.window_t, t.window_t]),
+            np.concatenate([t.window_n, t.window_n]),
+            self.face_std,
+            k,
+            None if direction is None else np.concatenate([direction, direction]),
+        )
+        extent = t.bbox_max - t.bbox_min
+        near_only = self.standing.upright(extent) & (extent[:, 0:2].max(axis=1) <= self.near_only_m)
+        return (
+            np.where(near_only, whole[:n], np.minimum(whole[:n], whole[n:])),
+            np.where(near_only, along[:n], np.minimum(along[:n], along[n:])),
+        )
