@@ -447,6 +447,31 @@ def smeared(
     )
 
 
+def counted(voxels: np.ndarray, points: int = 20) -> Cluster:
+    """A cluster of these voxels, each holding ``points`` of this frame's points."""
+    return dataclasses.replace(of_voxels(voxels), voxel_points=np.full(len(voxels), points, dtype=np.int32))
+
+
+def test_narrow_is_measured_across_the_line_of_sight() -> None:
+    # an oncoming car left of the road, 15-19.3 m ahead: its front and the side facing the road
+    # are in view. 1.8 m wide in y, but across the line of sight (22 degrees) it spans 3 m
+    front = box_voxels((15.0, 6.1, 0.25), (15.25, 7.9, 1.5))
+    side = box_voxels((15.0, 6.1, 0.25), (19.3, 6.35, 1.5))
+    car = counted(np.unique(np.vstack([front, side]), axis=0))
+    # a walker 35 degrees right, smeared 3 m along the line of sight: 1.7 m wide in y, 0.5 m across it
+    ray = np.array([np.cos(np.radians(-35.0)), np.sin(np.radians(-35.0))])
+    steps = [(r * ray[0], r * ray[1]) for r in np.arange(10.0, 13.0, 0.1)]
+    smear = [box_voxels((x, y, 0.0), (x + 0.4, y + 0.4, 1.75)) for x, y in steps]
+    walker = counted(np.unique(np.vstack(smear), axis=0))
+    # a hedge along the right edge of the road, 10 m long: its near end is where the image's side cuts it
+    hedge = counted(box_voxels((12.0, -7.5, 0.0), (22.0, -6.75, 1.5)))
+    clusters = [car, walker, hedge]
+    points, _, _, narrow = anchors(clusters, np.array([c.centroid for c in clusters]), np.eye(4), EDGE)
+    assert narrow.tolist() == [False, True, True]
+    assert points[0, 0, 0] == pytest.approx(15.125, abs=0.01)  # the car's front, not its side's middle
+    assert points[2, 1, 0] == pytest.approx(17.125, abs=0.3)  # the hedge's middle, not its cut near end
+
+
 def test_a_narrow_cluster_is_followed_at_its_points_median_range_a_wide_one_at_its_near_face() -> None:
     walker = smeared((20.0, -0.25, 0.0), (20.5, 0.25, 1.75), core_points=60)  # 0.5 m wide, 3 % of points in the fringe
     car = smeared((20.0, -4.0, 0.25), (24.0, -1.5, 1.5), core_points=60)  # 2.5 m wide

@@ -18,6 +18,8 @@ and the fringe's depth changes with range: a walker coming towards the camera at
 median range of this frame's points (the mapper counts them per voxel), which the fringe's few
 points hardly move. Moving TP / FP went 68.9 / 2.0 -> 71.5 / 2.2 % on the eight tuning runs and
 64.7 / 3.6 -> 66.7 / 1.5 % on the eight held-out ones (docs/results/tracking.md, "Session 14").
+Narrow is measured across the line of sight: sideways, an oncoming car seen obliquely was narrow
+too, and the median of its points slid back along its side as it neared ("Session 22").
 
 Which side face is in view changes as an object crosses the line of sight; the three candidates
 are all returned so that a track can switch without a jump (core.py shifts its state by the
@@ -40,6 +42,10 @@ FACE_PERCENTILE: float = 5.0
 #: a cluster narrower than this across the line of sight (m, 5-95 % of its points) is followed at
 #: the median range of its points instead of its near face (measured 1.3, 2.0, 2.5).
 NARROW_M: float = 2.0
+#: ... and so is one this narrow sideways and at least this long (m, 5-95 % of its voxels in
+#: vehicle y and x): longer than any vehicle, a structure along the road, whose near end is where the
+#: image's side edge cuts it and slides with the vehicle (measured 4.5, 6, 8: the same).
+ALONG_ROAD_M: float = 6.0
 
 
 def _points_per_voxel(clusters: list[Cluster], counts: NDArray) -> tuple[NDArray, NDArray]:
@@ -109,8 +115,15 @@ def anchors(
 
     q = FACE_PERCENTILE / 100.0
     near_x, far_x, range_x = ranked(local[:, 0], (q, 1.0 - q), (0.5,))
-    y_lo, y_hi, width_lo, width_hi = ranked(local[:, 1], (q, 1.0 - q), (0.05, 0.95))
-    narrow[:] = counted & (width_hi - width_lo < NARROW_M) & has
+    y_lo, y_hi = ranked(local[:, 1], (q, 1.0 - q), ())
+    # across the line of sight, not sideways: a car seen obliquely is 1.8 m wide in y but shows its
+    # side, and its points' median range slides back along it as it nears (oncoming cars were
+    # read at 65-75 % of their speed); a walker smeared along an oblique ray is wide in y
+    ray = (out[:, 0, 0:3] - origin) @ axes
+    ray /= np.maximum(np.linalg.norm(ray, axis=1), 1e-9)[:, None]
+    across_lo, across_hi = ranked(ray[label, 0] * local[:, 1] - ray[label, 1] * local[:, 0], (), (0.05, 0.95))
+    along_road = (y_hi - y_lo < NARROW_M) & (far_x - near_x >= ALONG_ROAD_M)
+    narrow[:] = counted & ((across_hi - across_lo < NARROW_M) | along_road) & has
     x = np.where(narrow, range_x, near_x)
     z = (out[:, 0] - origin) @ rotation[:, 2]
     for k, y in enumerate((y_lo, 0.5 * (y_lo + y_hi), y_hi)):
