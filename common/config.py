@@ -159,6 +159,8 @@ class VoxelConfig:
     cut_tall_m: float = 2.8  # in a cluster this tall, a patch of columns ending below cut_low_m is cut off (0 = off)
     cut_low_m: float = 2.0  # measured 2.0..2.5 and 2.5..3.0 m tall: within 1 point on urban seeds 1-2
     cut_min_voxels: int = 12
+    group_dense_share: float = 0.3  # columns with this share of the densest one's points: people (0 = off; 0.2, 0.3)
+    group_min_voxels: int = 40  # ... a cluster is cut, one per person, if each keeps this many (0, 20, 30, 40)
 
 
 @dataclass

@@ -351,3 +351,25 @@ def test_overhang_measure_sees_the_span_and_what_is_beneath() -> None:
 def test_overhangs_of_the_hanging_scenario_are_the_sign_and_the_gantry() -> None:
     shapes = overhangs("hanging", 1, 3.5)
     assert sorted((round(s.underside, 2), round(s.top, 2)) for s in shapes.values()) == [(2.4, 3.5), (2.8, 3.2)]
+
+
+def test_two_walkers_joined_by_smear_are_cut_apart_where_their_points_stand() -> None:
+    # two people 1.1 m apart, the gap between them filled by a sparser sheet of smear of their colour
+    coat = (40, 90, 160)
+    walkers = [box((12.0, y, 0.0), (12.5, y + 0.5, 1.75), coat, seed=k) for k, y in enumerate((-0.8, 0.3))]
+    smear = box((12.0, -0.3, 0.2), (12.5, 0.3, 1.5), coat, step=0.08, seed=5)
+    frame = cloud(road(), *walkers, smear)
+    whole = mapper(group_dense_share=0.0).process(frame, ego()).clusters
+    cut = mapper().process(frame, ego()).clusters
+    assert len(whole) == 1
+    assert len(cut) == 2
+    assert sorted(round(float(c.centroid[1]), 1) for c in cut) == pytest.approx([-0.5, 0.5], abs=0.15)
+
+
+def test_a_car_and_a_gap_in_a_wall_are_not_cut_as_people() -> None:
+    # a car's rear is one dense patch 1.8 m wide; a wall with a doorway is two dense patches each
+    # wider than a person
+    car = box((12.0, -0.9, 0.3), (16.0, 0.9, 1.5), BLUE)
+    wall = [box((20.0, y0, 0.0), (20.5, y1, 2.0), BLUE, seed=2) for y0, y1 in ((3.0, 5.0), (5.6, 7.6))]
+    sill = box((20.0, 5.0, 1.8), (20.5, 5.6, 2.0), BLUE, step=0.08, seed=4)
+    assert len(mapper().process(cloud(road(), car, *wall, sill), ego()).clusters) == 2

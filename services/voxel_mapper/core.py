@@ -32,6 +32,7 @@ from common.config import Config, VolumeConfig
 from common.errors import ConfigError, InputError
 from common.messages import Clusters, EgoMotion, PointCloud
 from services.voxel_mapper.flood_fill import flood_fill, touching_pairs
+from services.voxel_mapper.groups import split_groups
 from services.voxel_mapper.linkage import join_parts
 from services.voxel_mapper.refinement import aggregate, remove_noise
 from services.voxel_mapper.skyline import cut_low_parts
@@ -50,7 +51,8 @@ class VoxelMapper:
                  keep_frames: int = 0, ground_clearance: float = 0.2, join_share: float = 0.3,
                  bridge_voxels: int = 3, points_range_m: float = 0.0, min_points_far: int = 2,
                  join_min_voxels: int = 0, cut_tall_m: float = 0.0, cut_low_m: float = 2.2,
-                 cut_min_voxels: int = 12, step_voxels: int = 0) -> None:
+                 cut_min_voxels: int = 12, step_voxels: int = 0, group_dense_share: float = 0.0,
+                 group_min_voxels: int = 40) -> None:
         if edge <= 0.0:
             raise ConfigError(f"voxel.edge must be > 0, got {edge}")
         self.map = VoxelMap(edge, keep_frames)
@@ -68,6 +70,7 @@ class VoxelMapper:
         self.min_points_far = min_points_far
         self.join_min = join_min_voxels if join_min_voxels > 0 else min_cluster_voxels
         self.cut = (cut_tall_m, cut_low_m, cut_min_voxels)
+        self.groups = (group_dense_share, group_min_voxels)
         self.epoch: int | None = None
 
     @classmethod
@@ -86,7 +89,8 @@ class VoxelMapper:
                    ground_clearance=v.ground_clearance, join_share=v.join_share, bridge_voxels=v.bridge_voxels,
                    points_range_m=v.points_range_m, min_points_far=v.min_points_far,
                    join_min_voxels=v.join_min_voxels, cut_tall_m=v.cut_tall_m, cut_low_m=v.cut_low_m,
-                   cut_min_voxels=v.cut_min_voxels, step_voxels=v.step_bridge_voxels)
+                   cut_min_voxels=v.cut_min_voxels, step_voxels=v.step_bridge_voxels,
+                   group_dense_share=v.group_dense_share, group_min_voxels=v.group_min_voxels)
 
     def process(self, cloud: PointCloud, ego: EgoMotion) -> Clusters:
         """Update the map with one frame and cluster the voxels above the road."""
@@ -103,6 +107,8 @@ class VoxelMapper:
             labels, n_clusters = cut_low_parts(labels, n_clusters, self.map.coords, height, *self.cut)
         labels = aggregate(labels, n_clusters, touching_pairs(self.map, labels), self.min_cluster_voxels)
         labels = remove_noise(labels, self.map.coords, n_clusters, self.min_cluster_voxels, self.min_density)
+        labels, n_clusters = split_groups(labels, n_clusters, self.map.coords, self.map.hits, *self.groups,
+                                          self.map.edge)
         return Clusters(frame_id=cloud.frame_id, stamp_ns=cloud.stamp_ns, clusters=describe(self.map, labels),
                         voxel_edge=self.map.edge, world_epoch=ego.world_epoch, ego_pose=np.array(ego.pose),
                         voxel_count=self.map.n)
