@@ -197,6 +197,7 @@ class TrackerConfig:
     moving_min_frames: int = 4  # frames of track before it may be called moving
     process_noise: float = 1.0  # horizontal acceleration std (m/s^2)
     process_noise_z: float = 0.1  # vertical acceleration std (m/s^2): obstacles stay on the road
+    upright_process_noise: float = 2.0  # ... horizontal, of an upright track: people start and stop (0 = as others)
     measurement_noise: float = 0.15  # centroid std (m) across the viewing ray, and near
     range_noise_per_m2: float = 0.0005  # added std along the ray per squared metre of range (stereo)
     initial_speed_std: float = 5.0  # horizontal velocity std of a new track (m/s)

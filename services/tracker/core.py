@@ -93,6 +93,7 @@ class Tracker:
         upright_speed_std: float | None = None,
         near_only_m: float = 0.0,
         upright_sigma_k: float | None = None,
+        upright_accel_std: float | None = None,
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -114,6 +115,9 @@ class Tracker:
         self.revive_restart_m = revive_restart_m
         self.merge_growth_m = merge_growth_m
         self.upright_speed_std = upright_speed_std
+        self.upright_accel_std = None if upright_accel_std is None else self.accel_std.copy()
+        if self.upright_accel_std is not None:
+            self.upright_accel_std[0:2] = upright_accel_std
         self.labeller = MotionLabeller(
             hysteresis, standing, measurement_std, frame_period_s, narrow_across_m, upright_sigma_k, near_only_m
         )
@@ -154,6 +158,7 @@ class Tracker:
             upright_speed_std=t.upright_initial_speed_std,
             near_only_m=t.upright_near_only_m,
             upright_sigma_k=t.upright_sigma_k,
+            upright_accel_std=t.upright_process_noise or None,
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
@@ -247,7 +252,20 @@ class Tracker:
     def _predict(self, dt: float) -> None:
         t = self.tracks
         if len(t):
-            t.x, t.p = kalman.predict(t.x, t.p, kalman.transition(dt), kalman.process_noise(dt, self.accel_std))
+            t.x, t.p = kalman.predict(t.x, t.p, kalman.transition(dt), self._process_noise(dt))
+
+    def _process_noise(self, dt: float) -> NDArray:
+        """(6, 6), or (n, 6, 6) when an upright track (a person) may change speed faster than a car.
+
+        A walker starts and stops within a second: with a car's 1 m/s^2 a track that began on a
+        walker waiting at the kerb took 8-10 frames to follow him across (synthetic crossing-s2;
+        docs/results/tracking.md, "Session 22").
+        """
+        q = kalman.process_noise(dt, self.accel_std)
+        if self.upright_accel_std is None:
+            return q
+        upright = self.standing.upright(self.tracks.bbox_max - self.tracks.bbox_min)
+        return np.where(upright[:, None, None], kalman.process_noise(dt, self.upright_accel_std)[None], q[None])
 
     def _associate(self, obs: Observations, r: NDArray) -> tuple[NDArray, NDArray]:
         t = self.tracks
