@@ -115,9 +115,9 @@ class Tracker:
         self.revive_restart_m = revive_restart_m
         self.merge_growth_m = merge_growth_m
         self.upright_speed_std = upright_speed_std
-        self.upright_accel_std = None if upright_accel_std is None else self.accel_std.copy()
-        if self.upright_accel_std is not None:
-            self.upright_accel_std[0:2] = upright_accel_std
+        self.upright_accel_std = (
+            None if upright_accel_std is None else np.array([upright_accel_std, upright_accel_std, self.accel_std[2]])
+        )
         self.labeller = MotionLabeller(
             hysteresis, standing, measurement_std, frame_period_s, narrow_across_m, upright_sigma_k, near_only_m
         )

@@ -5,7 +5,7 @@ this frame's points brought into the world (Sect. IV-A), find the road, select t
 inside the volume of interest, flood-fill them by colour (Alg. IV-B.1, Eq. 1), join the parts of
 one object (an addition, see ``linkage``), cut low objects off tall structures they were filled
 into (an addition, see ``skyline``), aggregate small clusters (Alg. IV-B.2), remove noise
-(Alg. IV-B.3) and describe what is left.
+(Alg. IV-B.3), cut groups of people apart (an addition, see ``groups``) and describe what is left.
 
 World-state policy: a new ``world_epoch`` resets the map (its world frame is gone). An invalid
 egomotion also restarts the map from this frame alone: its pose is odometry's prediction, good

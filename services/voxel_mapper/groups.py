@@ -13,7 +13,8 @@ So in a cluster standing at least ``TALL_M`` high, the columns holding ``dense_s
 densest column's points are grouped into 8-connected patches. The cluster is cut, each voxel going
 to the nearest patch, when every patch is a core and there are two or more, and at most
 ``MAX_CORES``. A core is no wider than ``CORE_M`` either way (a person, a pole; a car's rear or a
-facade is wider) and holds at least ``CORE_SHARE`` of the cluster's points. Each piece must keep
+facade is wider), reaches no higher than ``PERSON_M`` (a gantry's posts, poles and trees do) and
+holds at least ``CORE_SHARE`` of the cluster's points. Each piece must keep
 ``min_voxels``: below that the pieces were the two halves of a car or a pole and its own smear,
 and became phantom obstacles. Measured on tracker-and-mapper replays (docs/results/voxel.md,
 "Session 22"); the constants were set once, not swept.
@@ -39,7 +40,7 @@ TALL_M: float = 1.2
 #: most cores a cut cluster has
 MAX_CORES: int = 3
 #: highest core above the cluster's lowest voxel (m): a person, not a gantry's post or a pole
-PERSON_LAYERS_M: float = 2.5
+PERSON_M: float = 2.5
 
 
 def split_groups(
@@ -86,7 +87,7 @@ def split_groups(
         core_of = patches[ij[:, 0], ij[:, 1]]
         top = np.zeros(n_patches + 1, dtype=np.int64)
         np.maximum.at(top, core_of, height - height.min() + 1)
-        if top[1:].max() > PERSON_LAYERS_M / edge + 1e-9:
+        if top[1:].max() > PERSON_M / edge + 1e-9:
             continue
         centres = np.array(ndimage.center_of_mass(columns, patches, index))
         nearest = np.argmin(((ij[:, None, :] - centres[None, :, :]) ** 2).sum(axis=2), axis=1)
