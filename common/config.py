@@ -200,6 +200,7 @@ class TrackerConfig:
     upright_process_noise: float = 2.0  # ... horizontal, of an upright track: people start and stop (0 = as others)
     measurement_noise: float = 0.15  # centroid std (m) across the viewing ray, and near
     range_noise_per_m2: float = 0.0005  # added std along the ray per squared metre of range (stereo)
+    side_slice_m: float = 1.75  # a cluster reaching in from a side of the volume by less: a slice, unsure in x too
     initial_speed_std: float = 5.0  # horizontal velocity std of a new track (m/s)
     initial_vertical_speed_std: float = 0.3  # its vertical velocity std (m/s)
     upright_initial_speed_std: float = 3.5  # ... a new narrow upright one's (walker, cyclist, pole)

@@ -19,6 +19,7 @@ from services.tracker import anchor as anchor_module
 from services.tracker.anchor import anchors
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
 from services.tracker.fragments import Sight, Standing, components, footprint, in_contact, merge, near_boxes
+from services.tracker.measurement import cut_covariance
 from services.tracker.motion_window import speed_bounds
 
 EDGE = 0.25
@@ -941,3 +942,29 @@ def test_a_walker_starting_from_the_kerb_is_followed_sooner_with_an_upright_proc
     car_like, upright = speeds(0.0), speeds(2.0)
     assert max(upright[:8]) < 0.3  # standing still: no speed either way
     assert upright[13] > 1.0 > car_like[13]  # five frames after he set off
+
+
+def test_a_slice_reaching_in_from_the_side_is_unsure_along_the_road_too() -> None:
+    volume = Config().volume  # |y| <= 8.2 m
+    lo = np.array([[12.0, 7.2, 0.0], [12.0, 6.1, 0.0], [25.0, -1.0, 0.0]])
+    hi = np.array([[15.0, 8.2, 1.5], [16.5, 8.2, 1.5], [28.7, 1.0, 1.5]])
+    cov = cut_covariance(lo, hi, np.eye(4), volume, EDGE, slice_m=1.75)
+    assert cov[0, 0, 0] == pytest.approx(9.0) and cov[0, 1, 1] == pytest.approx(1.0)  # a slice 1 m deep
+    assert cov[1, 0, 0] == 0.0 and cov[1, 1, 1] == pytest.approx(2.1**2)  # a car 2.1 m in: only across
+    assert cov[2, 0, 0] == pytest.approx(3.7**2) and cov[2, 1, 1] == 0.0  # cut by the far end
+
+
+def test_a_slice_whose_ends_slide_along_the_road_is_not_called_moving_for_a_second() -> None:
+    # a hedge beyond the volume's side, seen as a 1 m deep slice whose ends slide 0.4 m a frame; a
+    # slide kept up for longer is believed in the end (KITTI's slices last a few frames)
+    def moving(slice_m: float) -> list[bool]:
+        tracker = new_tracker(side_slice_m=slice_m)
+        out = []
+        for k in range(20):
+            x = 12.0 + 0.4 * k
+            result = step(tracker, k, [counted(box_voxels((x, 7.25, 0.0), (x + 3.0, 8.2, 1.5)))])
+            out.append(any(o.moving for o in result.obstacles))
+        return out
+
+    assert moving(0.0).index(True) <= 4
+    assert not any(moving(Config().tracker.side_slice_m)[:10])

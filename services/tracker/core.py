@@ -94,6 +94,7 @@ class Tracker:
         near_only_m: float = 0.0,
         upright_sigma_k: float | None = None,
         upright_accel_std: float | None = None,
+        side_slice_m: float = 0.0,
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -115,6 +116,7 @@ class Tracker:
         self.revive_restart_m = revive_restart_m
         self.merge_growth_m = merge_growth_m
         self.upright_speed_std = upright_speed_std
+        self.side_slice_m = side_slice_m
         self.upright_accel_std = (
             None if upright_accel_std is None else np.array([upright_accel_std, upright_accel_std, self.accel_std[2]])
         )
@@ -159,6 +161,7 @@ class Tracker:
             near_only_m=t.upright_near_only_m,
             upright_sigma_k=t.upright_sigma_k,
             upright_accel_std=t.upright_process_noise or None,
+            side_slice_m=t.side_slice_m,
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
@@ -289,7 +292,7 @@ class Tracker:
     def _cluster_cov(self, obs: Observations, pose: NDArray, voxel_edge: float) -> NDArray:
         """How far each centroid can be trusted from the cluster alone (measurement.py)."""
         r = stereo_covariance(obs.anchor, pose[0:3, 3], self.measurement_std, self.range_noise_per_m2)
-        return r + cut_covariance(obs.bbox_min, obs.bbox_max, pose, self.volume, voxel_edge)
+        return r + cut_covariance(obs.bbox_min, obs.bbox_max, pose, self.volume, voxel_edge, self.side_slice_m)
 
     def _correct(self, rows: NDArray, obs: Observations, r: NDArray) -> None:
         """Kalman correction of the associated tracks with their clusters' centroids."""
