@@ -48,18 +48,24 @@ NARROW_M: float = 2.0
 ALONG_ROAD_M: float = 6.0
 
 
-def _points_per_voxel(clusters: list[Cluster], counts: NDArray) -> tuple[NDArray, NDArray]:
-    """This frame's points per voxel of all clusters in a row, and which clusters have them.
+def _stacked(clusters: list[Cluster]) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """All clusters' voxels in a row (float), their counts, this frame's points per voxel, and which are counted.
 
-    A cluster from a recording made before the mapper counted points weighs its voxels alike.
+    A cluster from a recording made before the mapper counted points weighs its voxels alike. One
+    pass over the clusters: three list comprehensions cost 60 µs a frame with 50 clusters.
     """
-    parts = [np.asarray(c.voxel_points) for c in clusters]
-    counted = np.array([len(w) for w in parts]) == counts
+    voxels, points = [], []
+    for c in clusters:
+        voxels.append(np.asarray(c.voxels).reshape(-1, 3))
+        points.append(np.asarray(c.voxel_points))
+    counts = np.fromiter((len(v) for v in voxels), dtype=np.int64, count=len(voxels))
+    counted = np.fromiter((len(w) for w in points), dtype=np.int64, count=len(points)) == counts
     if not counted.all():
-        parts = [w if ok else np.ones(n) for w, ok, n in zip(parts, counted, counts.tolist(), strict=True)]
-    weights = np.concatenate(parts).astype(np.float64)
+        points = [w if ok else np.ones(n) for w, ok, n in zip(points, counted, counts.tolist(), strict=True)]
+    stacked = np.concatenate(voxels).astype(np.float64) if voxels else np.zeros((0, 3))
+    weights = np.concatenate(points).astype(np.float64) if points else np.zeros(0)
     # + 1e-3: a voxel kept without points this frame counts a little
-    return np.where(np.repeat(counted, counts), weights + 1e-3, weights), counted
+    return stacked, counts, np.where(np.repeat(counted, counts), weights + 1e-3, weights), counted
 
 
 def anchors(
@@ -82,35 +88,37 @@ def anchors(
     side = np.ones(n, dtype=np.int8)
     far = np.zeros((n, 3))
     narrow = np.zeros(n, dtype=bool)
-    counts = np.array([np.asarray(c.voxels).shape[0] for c in clusters], dtype=np.int64)
-    if n == 0 or not np.isfinite(pose).all() or counts.sum() == 0:
+    if n == 0 or not np.isfinite(pose).all():
+        return out, side, far, narrow
+    voxels, counts, weights, counted = _stacked(clusters)
+    if len(voxels) == 0:
         return out, side, far, narrow
     rotation, origin = pose[0:3, 0:3], pose[0:3, 3]
-    voxels = np.concatenate([np.asarray(c.voxels).reshape(-1, 3) for c in clusters]).astype(np.float64)
     # vehicle x, y of every voxel; np.dot with the scale folded in: ``@`` on (n, 3) x (3, 2) is 4x slower here
     axes = np.ascontiguousarray(rotation[:, 0:2])
     local = np.dot(voxels, edge * axes) + (0.5 * edge - origin) @ axes
     label = np.repeat(np.arange(n), counts)
     has = counts > 0
-    starts = np.minimum(np.concatenate([[0], np.cumsum(counts)[:-1]]), len(voxels) - 1)
-    last = np.maximum(np.cumsum(counts) - 1, starts)
-
-    weights, counted = _points_per_voxel(clusters, counts)
-    by_count = np.arange(1.0, len(voxels) + 1.0)
+    ends = np.cumsum(counts)
+    starts = np.minimum(ends - counts, len(voxels) - 1)
+    last = np.maximum(ends - 1, starts)
 
     def ranked(values: NDArray, by_voxels: tuple[float, ...], by_points: tuple[float, ...]) -> list[NDArray]:
         """Per cluster, the first value (ascending) whose running count, then running points, reach each share.
 
         One sort serves both: the faces count voxels, a narrow cluster's range and width its points.
+        The running count is the position itself, so its share is found without a search.
         """
         low = values.min()
         order = np.argsort(label * (float(values.max() - low) + 1.0) + (values - low), kind="stable")
         ordered = values[order]
-        out = []
-        for cum, shares in ((by_count, by_voxels), (np.cumsum(weights[order]), by_points)):
+        at = [np.ceil(starts + share * counts).astype(np.int64) - 1 for share in by_voxels]
+        out = [ordered[np.clip(i, starts, last)] for i in at]
+        if by_points:
+            cum = np.cumsum(weights[order])
             before = np.where(starts > 0, cum[np.maximum(starts - 1, 0)], 0.0)
             total = cum[last] - before
-            out += [ordered[np.clip(np.searchsorted(cum, before + share * total), starts, last)] for share in shares]
+            out += [ordered[np.clip(np.searchsorted(cum, before + share * total), starts, last)] for share in by_points]
         return out
 
     q = FACE_PERCENTILE / 100.0
@@ -126,9 +134,12 @@ def anchors(
     narrow[:] = counted & ((across_hi - across_lo < NARROW_M) | along_road) & has
     x = np.where(narrow, range_x, near_x)
     z = (out[:, 0] - origin) @ rotation[:, 2]
-    for k, y in enumerate((y_lo, 0.5 * (y_lo + y_hi), y_hi)):
-        points = np.column_stack([x, y, z])
-        out[has, k] = (points @ rotation.T + origin)[has]
+    # the three sides' points in the vehicle frame (n, 3 sides, 3), then all into the world at once
+    points = np.empty((n, 3, 3))
+    points[:, :, 0] = x[:, None]
+    points[:, :, 1] = np.column_stack([y_lo, 0.5 * (y_lo + y_hi), y_hi])
+    points[:, :, 2] = z[:, None]
+    out[has] = (points @ rotation.T + origin)[has]
     side[has] = np.where(y_hi < 0.0, 2, np.where(y_lo > 0.0, 0, 1))[has]
     far[has] = ((far_x - x)[:, None] * rotation[:, 0][None, :])[has]
     return out, side, far, narrow

@@ -27,12 +27,8 @@ import numpy as np
 import numpy.typing as npt
 
 from common.config import VolumeConfig
-from common.geometry import invert
 
 NDArray = npt.NDArray[Any]
-
-#: the 8 corners of a unit box, as weights of (min, max).
-_CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=np.float64)
 
 
 def stereo_covariance(points: NDArray, eye: NDArray, base_std: float, per_m2: float) -> NDArray:
@@ -54,10 +50,11 @@ def cut_covariance(
     ``slice_m``; across the cut the centroid is as good as ever. The road below and the sky above
     do not cut obstacles sideways, so z limits do not count.
     """
-    corners = bbox_min[:, None, :] + _CORNERS[None] * (bbox_max - bbox_min)[:, None, :]
-    to_vehicle = invert(pose)
-    local = corners @ to_vehicle[0:3, 0:3].T + to_vehicle[0:3, 3]
-    lo, hi = local.min(axis=1), local.max(axis=1)
+    # the box in the vehicle's axes: its centre turned, its half extents through |R^T| (the corners' hull)
+    rotation = pose[0:3, 0:3]
+    centre = (0.5 * (bbox_min + bbox_max) - pose[0:3, 3]) @ rotation
+    half = (0.5 * (bbox_max - bbox_min)) @ np.abs(rotation)
+    lo, hi = centre - half, centre + half
     cut_x = (lo[:, 0] <= volume.x_min + margin) | (hi[:, 0] >= volume.x_max - margin)
     cut_y = np.maximum(-lo[:, 1], hi[:, 1]) >= volume.y_half - margin
     inner = np.where(hi[:, 1] >= volume.y_half - margin, lo[:, 1], -hi[:, 1])  # |y| of its edge inside

@@ -40,13 +40,14 @@ class Hysteresis:
 
 def speed_and_sigma(velocity: NDArray, velocity_cov: NDArray) -> tuple[NDArray, NDArray]:
     """Horizontal speed (n,) and its standard deviation along the velocity's direction."""
-    v = velocity[:, 0:2]
-    speed = np.linalg.norm(v, axis=1)
-    direction = v / np.maximum(speed, 1e-9)[:, None]
-    cov = velocity_cov[:, 0:2, 0:2]
-    var = np.einsum("ni,nij,nj->n", direction, cov, direction)
+    vx, vy = velocity[:, 0], velocity[:, 1]
+    speed = np.hypot(vx, vy)
+    dx, dy = vx / np.maximum(speed, 1e-9), vy / np.maximum(speed, 1e-9)
+    cxx, cyy = velocity_cov[:, 0, 0], velocity_cov[:, 1, 1]
+    # d^T C d written out: a three-operand einsum costs twice as much for a 2 x 2 form
+    var = dx * dx * cxx + dx * dy * (velocity_cov[:, 0, 1] + velocity_cov[:, 1, 0]) + dy * dy * cyy
     # at zero speed the direction is arbitrary: take the larger axis variance, the cautious choice
-    var = np.where(speed > 1e-9, var, np.maximum(cov[:, 0, 0], cov[:, 1, 1]))
+    var = np.where(speed > 1e-9, var, np.maximum(cxx, cyy))
     return speed, np.sqrt(np.maximum(var, 0.0))
 
 

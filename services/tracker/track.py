@@ -60,6 +60,8 @@ class TrackTable:
 
     def keep(self, mask: NDArray) -> None:
         """Drop the rows where ``mask`` is False."""
+        if mask.all():  # most frames drop nothing; copying 24 columns costs 30 µs
+            return
         for f in dataclasses.fields(self):
             setattr(self, f.name, getattr(self, f.name)[mask])
 
