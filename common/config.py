@@ -219,6 +219,8 @@ class TrackerConfig:
     narrow_across_m: float = 2.0  # narrower across its line of sight (m): may be labelled by its speed across; 0 = off
     revive_restart_m: float = 1.0  # a ghost found this far (m) from its prediction restarts its speed window; 0: off
     merge_growth_m: float = 2.0  # cluster wider by more (m, x or y) than its track's smoothed extent: box kept; 0: off
+    coast_merged_frames: int = 3  # an upright track unseen inside a seen tracked box stays tracked this long; 0: off
+    coast_min_age: int = 8  # ... if this many frames old (measured 0: a young track's wrong velocity coasted too)
 
 
 @dataclass

@@ -192,6 +192,32 @@ def test_ghost_revived_keeps_its_id() -> None:
     assert [(o.id, o.state) for o in back] == [(first.id, "tracked")]
 
 
+def walkers_then_merged(tracker: Tracker, merged_frames: int) -> list[str]:
+    """Two walkers side by side, each seen alone for 10 frames, then one cluster for both.
+
+    Returns the second walker's state on each merged frame ("" once it is gone).
+    """
+    red, blue = (0.7, 0.2, 0.2), (0.2, 0.2, 0.7)
+    walker = (0.5, 0.5, 1.8)
+    for k in range(10):
+        out = step(tracker, k, [cluster(0, (15.0, -1.0, 0.9), walker, red), cluster(1, (15.0, 0.0, 0.9), walker, blue)])
+    (second,) = [o.id for o in out.obstacles if abs(o.centroid[1]) < 0.1]
+    both = cluster(0, (15.0, -0.6, 0.9), (0.5, 1.5, 1.8), red)  # smear joins them; nearer the first
+    states = []
+    for k in range(10, 10 + merged_frames):
+        states.append(next((o.state for o in step(tracker, k, [both]).obstacles if o.id == second), ""))
+    return states
+
+
+def test_a_walker_merged_into_his_neighbours_cluster_stays_tracked_for_a_few_frames() -> None:
+    # the first walker's track takes the joined cluster; the second stays reported where he stands
+    coasting = new_tracker(coast_merged_frames=3, coast_min_age=8)
+    assert walkers_then_merged(coasting, 5) == ["tracked"] * 3 + ["ghost"] * 2
+    assert walkers_then_merged(new_tracker(coast_merged_frames=0), 2) == ["ghost"] * 2
+    # a track younger than coast_min_age turns ghost at once: its velocity is still a guess
+    assert walkers_then_merged(new_tracker(coast_merged_frames=3, coast_min_age=20), 1) == ["ghost"]
+
+
 def test_unmatched_cluster_starts_a_new_acceptance_track() -> None:
     tracker = new_tracker()
     for k in range(5):

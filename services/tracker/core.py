@@ -43,7 +43,7 @@ from services.tracker.labelling import MotionLabeller
 from services.tracker.measurement import cut_covariance, stereo_covariance, visibility_covariance
 from services.tracker.motion_state import SLIDE_SMOOTHING, EgoVelocity, Hysteresis
 from services.tracker.observations import Observations, observe
-from services.tracker.queues import advance
+from services.tracker.queues import NO_COASTING, Coasting, advance, merged_away
 from services.tracker.report import obstacles_of
 from services.tracker.track import ACCEPTANCE, GHOST, TRACKED, TrackTable
 
@@ -95,6 +95,7 @@ class Tracker:
         upright_sigma_k: float | None = None,
         upright_accel_std: float | None = None,
         side_slice_m: float = 0.0,
+        coasting: Coasting = NO_COASTING,
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -117,6 +118,7 @@ class Tracker:
         self.merge_growth_m = merge_growth_m
         self.upright_speed_std = upright_speed_std
         self.side_slice_m = side_slice_m
+        self.coasting = coasting
         self.upright_accel_std = (
             None if upright_accel_std is None else np.array([upright_accel_std, upright_accel_std, self.accel_std[2]])
         )
@@ -162,6 +164,7 @@ class Tracker:
             upright_sigma_k=t.upright_sigma_k,
             upright_accel_std=t.upright_process_noise or None,
             side_slice_m=t.side_slice_m,
+            coasting=Coasting(t.coast_merged_frames, t.coast_min_age),
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
@@ -382,7 +385,9 @@ class Tracker:
         seen = np.zeros(len(self.tracks), dtype=bool)
         seen[rows] = True
         held = self._inside_known(seen, piece_of, sight)
-        keep = advance(self.tracks, seen, elapsed, self.accept_frames, self.ghost_frames, held, self.accept_misses)
+        t = self.tracks
+        coast = merged_away(t, seen, elapsed, self.coasting, self.standing.upright(t.bbox_max - t.bbox_min))
+        keep = advance(t, seen, elapsed, self.accept_frames, self.ghost_frames, held, self.accept_misses, coast)
         self.counters["tracks_dropped"] += int((~keep).sum())
         self.tracks.keep(keep)
 

@@ -3,22 +3,64 @@
 - acceptance: a new cluster; promoted to tracked once seen ``accept_frames`` frames (its birth
   frame included), discarded once unseen for more than ``accept_misses`` frames in a row (the
   paper: 0, the first frame it is not seen);
-- tracked: seen this frame; becomes a ghost the first frame it is not;
+- tracked: seen this frame; becomes a ghost the first frame it is not, unless it coasts (below);
 - ghost: not seen for ``misses`` frames; back to tracked when seen again, discarded once unseen
   for more than ``ghost_frames`` frames.
 Frames lost in a gap of the input count as frames unseen, so a long gap retires ghosts.
+
+A walker's track coasts, tracked though unseen, while its cluster has merged into a neighbour's:
+walkers crossing two or three abreast, a step apart in range, are joined by stereo smear into one
+cluster for a few frames, which one track takes; the others turned ghosts exactly where the
+walkers were (synthetic crossing seed 8: within 0.3 m in 21 frames), and the walkers went
+unreported. A track coasts when its reported position lies inside the box of a tracked object seen
+this frame, for at most ``Coasting.frames`` frames. Only an upright track does (a person or a pole):
+letting any shape coast kept car fragments inside their car. Only one old enough: a young track's
+velocity is still a guess, and coasting reports it for longer (docs/results/tracking.md,
+"Session 23").
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from services.tracker.fragments import claims
 from services.tracker.track import ACCEPTANCE, GHOST, TRACKED, TrackTable
 
 NDArray = npt.NDArray[Any]
+
+
+@dataclass(frozen=True)
+class Coasting:
+    """How long an upright track may stay tracked while merged into a neighbour's cluster, and from what age."""
+
+    frames: int = 0  # 0: never
+    min_age: int = 0  # frames of track
+
+
+#: tracks never coast: unseen is a ghost.
+NO_COASTING = Coasting()
+
+
+def merged_away(tracks: TrackTable, seen: NDArray, elapsed: int, coasting: Coasting, upright: NDArray) -> NDArray:
+    """Which tracks unseen this frame coast: upright, old enough, inside a seen tracked object's box.
+
+    Called before ``advance`` moves the counts on, so a track's misses include this frame's ``elapsed``.
+    """
+    t = tracks
+    out = np.zeros(len(t), dtype=bool)
+    if coasting.frames <= 0:
+        return out
+    candidate = ~seen & (t.queue != ACCEPTANCE) & upright
+    candidate &= (t.misses + elapsed <= coasting.frames) & (t.age >= coasting.min_age)
+    known = seen & (t.queue == TRACKED)
+    if candidate.any() and known.any():
+        where = t.x[candidate, 0:3] + t.offset[candidate]  # where the track reports itself
+        out[candidate] = claims(where, t.bbox_min[known], t.bbox_max[known], 0.0).any(axis=0)
+    return out
 
 
 def advance(
@@ -29,12 +71,14 @@ def advance(
     ghost_frames: int,
     held: NDArray | None = None,
     accept_misses: int = 0,
+    coast: NDArray | None = None,
 ) -> NDArray:
     """Move every track to its queue for this frame; return the mask of tracks to keep.
 
     ``seen`` marks the tracks associated with a cluster this frame; ``elapsed`` is the number of
     frames since the previous processed one (1 without a gap); ``held`` marks acceptance tracks
-    not to promote yet (a piece inside a known object, see fragments.py).
+    not to promote yet (a piece inside a known object, see fragments.py); ``coast`` marks unseen
+    tracks that stay or turn tracked (``merged_away``).
     """
     tracks.age += elapsed
     tracks.misses = np.where(seen, 0, tracks.misses + elapsed)
@@ -49,7 +93,11 @@ def advance(
     queue[ready] = TRACKED
     queue[seen & (was == GHOST)] = TRACKED
     queue[~seen & (was == TRACKED)] = GHOST
+    if coast is not None:
+        queue[coast] = TRACKED
     tracks.queue = queue
-    lost = ((was == ACCEPTANCE) & (tracks.misses > accept_misses)) | ((queue == GHOST) & (tracks.misses > ghost_frames))
+    # a ghost, or a track coasting, is retired after ``ghost_frames`` unseen
+    lost = (was == ACCEPTANCE) & (tracks.misses > accept_misses)
+    lost |= (queue != ACCEPTANCE) & (tracks.misses > ghost_frames)
     dropped = ~seen & lost
     return ~dropped
