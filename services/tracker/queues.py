@@ -10,13 +10,13 @@ Frames lost in a gap of the input count as frames unseen, so a long gap retires 
 
 A walker's track coasts, tracked though unseen, while its cluster has merged into a neighbour's:
 walkers crossing two or three abreast, a step apart in range, are joined by stereo smear into one
-cluster for a few frames, which one track takes; the others turned ghosts exactly where the
-walkers were (synthetic crossing seed 8: within 0.3 m in 21 frames), and the walkers went
-unreported. A track coasts when its reported position lies inside the box of a tracked object seen
-this frame, for at most ``Coasting.frames`` frames. Only an upright track does (a person or a pole):
-letting any shape coast kept car fragments inside their car. Only one old enough: a young track's
-velocity is still a guess, and coasting reports it for longer (docs/results/tracking.md,
-"Session 23").
+cluster for a few frames, which one track takes; the others turned ghosts where the walkers were
+(synthetic crossing seed 8: 21 walker-frames, the ghosts mostly within 0.3 m of their walkers),
+and the walkers went unreported. A track coasts when its reported position lies inside the box of
+a tracked object seen this frame, for at most ``Coasting.frames`` frames. Only an upright track
+does (a person or a pole): letting any shape coast added false moving frames and a parked track
+called moving. Only one old enough: a young track's velocity is still a guess, and coasting
+reports it for longer (docs/results/tracking.md, "Session 23").
 """
 
 from __future__ import annotations
