@@ -221,6 +221,7 @@ class TrackerConfig:
     merge_growth_m: float = 2.0  # cluster wider by more (m, x or y) than its track's smoothed extent: box kept; 0: off
     coast_merged_frames: int = 3  # an upright track unseen inside a seen tracked box stays tracked this long; 0: off
     coast_min_age: int = 8  # ... if this many frames old (measured 0: a young track's wrong velocity coasted too)
+    coast_max_speed_mps: float = 5.0  # ... and no faster (a car's rear is upright too; 3 measured the same)
 
 
 @dataclass

@@ -192,19 +192,20 @@ def test_ghost_revived_keeps_its_id() -> None:
     assert [(o.id, o.state) for o in back] == [(first.id, "tracked")]
 
 
-def walkers_then_merged(tracker: Tracker, merged_frames: int) -> list[str]:
-    """Two walkers side by side, each seen alone for 10 frames, then one cluster for both.
+def walkers_then_merged(tracker: Tracker, merged_frames: int, speed: float = 0.0) -> list[str]:
+    """Two walkers side by side walking at ``speed`` along x, each seen alone for 10 frames, then one cluster for both.
 
     Returns the second walker's state on each merged frame ("" once it is gone).
     """
     red, blue = (0.7, 0.2, 0.2), (0.2, 0.2, 0.7)
     walker = (0.5, 0.5, 1.8)
     for k in range(10):
-        out = step(tracker, k, [cluster(0, (15.0, -1.0, 0.9), walker, red), cluster(1, (15.0, 0.0, 0.9), walker, blue)])
+        x = 15.0 + speed * 0.1 * k
+        out = step(tracker, k, [cluster(0, (x, -1.0, 0.9), walker, red), cluster(1, (x, 0.0, 0.9), walker, blue)])
     (second,) = [o.id for o in out.obstacles if abs(o.centroid[1]) < 0.1]
-    both = cluster(0, (15.0, -0.6, 0.9), (0.5, 1.5, 1.8), red)  # smear joins them; nearer the first
     states = []
     for k in range(10, 10 + merged_frames):
+        both = cluster(0, (15.0 + speed * 0.1 * k, -0.6, 0.9), (0.5, 1.5, 1.8), red)  # smear joins them
         states.append(next((o.state for o in step(tracker, k, [both]).obstacles if o.id == second), ""))
     return states
 
@@ -216,6 +217,9 @@ def test_a_walker_merged_into_his_neighbours_cluster_stays_tracked_for_a_few_fra
     assert walkers_then_merged(new_tracker(coast_merged_frames=0), 2) == ["ghost"] * 2
     # a track younger than coast_min_age turns ghost at once: its velocity is still a guess
     assert walkers_then_merged(new_tracker(coast_merged_frames=3, coast_min_age=20), 1) == ["ghost"]
+    # one faster than coast_max_speed_mps too (a car's rear is upright as well)
+    assert walkers_then_merged(new_tracker(coast_max_speed_mps=5.0), 1, speed=1.5) == ["tracked"]
+    assert walkers_then_merged(new_tracker(coast_max_speed_mps=1.0), 1, speed=1.5) == ["ghost"]
 
 
 def test_unmatched_cluster_starts_a_new_acceptance_track() -> None:

@@ -164,7 +164,7 @@ class Tracker:
             upright_sigma_k=t.upright_sigma_k,
             upright_accel_std=t.upright_process_noise or None,
             side_slice_m=t.side_slice_m,
-            coasting=Coasting(t.coast_merged_frames, t.coast_min_age),
+            coasting=Coasting(t.coast_merged_frames, t.coast_min_age, t.coast_max_speed_mps),
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:

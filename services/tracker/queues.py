@@ -16,7 +16,9 @@ and the walkers went unreported. A track coasts when its reported position lies 
 a tracked object seen this frame, for at most ``Coasting.frames`` frames. Only an upright track
 does (a person or a pole): letting any shape coast added false moving frames and a parked track
 called moving. Only one old enough: a young track's velocity is still a guess, and coasting
-reports it for longer (docs/results/tracking.md, "Session 23").
+reports it for longer. Only one at a walker's or a cyclist's speed: a car's rear is upright too
+(tall, and thin in range), and a car at 7 m/s coasted 2 m past where it was last seen
+(docs/results/tracking.md, "Session 23").
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ class Coasting:
 
     frames: int = 0  # 0: never
     min_age: int = 0  # frames of track
+    max_speed: float = float("inf")  # m/s, horizontal
 
 
 #: tracks never coast: unseen is a ghost.
@@ -46,7 +49,7 @@ NO_COASTING = Coasting()
 
 
 def merged_away(tracks: TrackTable, seen: NDArray, elapsed: int, coasting: Coasting, upright: NDArray) -> NDArray:
-    """Which tracks unseen this frame coast: upright, old enough, inside a seen tracked object's box.
+    """Which tracks unseen this frame coast: upright, old enough, slow enough, inside a seen tracked object's box.
 
     Called before ``advance`` moves the counts on, so a track's misses include this frame's ``elapsed``.
     """
@@ -56,6 +59,7 @@ def merged_away(tracks: TrackTable, seen: NDArray, elapsed: int, coasting: Coast
         return out
     candidate = ~seen & (t.queue != ACCEPTANCE) & upright
     candidate &= (t.misses + elapsed <= coasting.frames) & (t.age >= coasting.min_age)
+    candidate &= np.hypot(t.x[:, 3], t.x[:, 4]) <= coasting.max_speed
     known = seen & (t.queue == TRACKED)
     if candidate.any() and known.any():
         where = t.x[candidate, 0:3] + t.offset[candidate]  # where the track reports itself
