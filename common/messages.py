@@ -159,6 +159,7 @@ class PointCloud(Message):
     SCHEMA: ClassVar[str] = "PointCloud"
     points: NDArray = array_field("float32", (None, 3))
     colors: NDArray = array_field("uint8", (None, 3))
+    origin: NDArray = array_field("float64", (3,), _zeros(3))  # where they were seen from: the left camera
 
 
 @dataclass(kw_only=True)
@@ -198,6 +199,10 @@ class Clusters(Message):
     world_epoch: int = 0
     ego_pose: NDArray = array_field("float64", (4, 4), _eye4)
     voxel_count: int = 0  # voxels in the map this frame (clustered or not)
+    # where the cloud was seen from (vehicle x, y) and the slopes dy / dx of its leftmost and rightmost
+    # bearings: the image's side edges, which cut what stands beside the road. Unknown (older
+    # recordings, an empty cloud) when the left slope is not above the right one.
+    view: NDArray = array_field("float64", (4,), _zeros(4))
 
 
 @dataclass(kw_only=True)

@@ -76,6 +76,7 @@ def test_known_surface_point_within_one_percent_of_depth() -> None:
         nearest = np.min(np.linalg.norm(cloud.points - expected.astype(np.float32), axis=1))
         assert nearest < 0.01 * depth, (uu, vv, nearest)
     assert cloud.points.dtype == np.float32 and cloud.colors.dtype == np.uint8
+    assert cloud.origin.tolist() == [0.0, 0.0, CAMERA_HEIGHT]  # seen from the left camera
     assert np.isfinite(disp.disparity[:, 40:]).mean() > 0.95  # left of ~33 px the right camera sees nothing
     assert len(cloud.points) == len(cloud.colors) > 0.5 * WIDTH * HEIGHT  # the wall's top is above z_max
 

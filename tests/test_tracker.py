@@ -321,6 +321,37 @@ def test_parked_car_whose_visible_part_grows_stays_stationary() -> None:
         assert not any(o.moving for o in out.obstacles), k
 
 
+def block_cut_by_the_image(margin: float) -> list[Obstacles]:
+    """A building block left of the road (world x 20-32, y 4-6.5, 3 m tall) passed at 10 m/s.
+
+    The image's left edge (dy / dx = 0.5 from the camera) cuts the block's near end from the
+    third frame on; that end then slides forward with the vehicle while the far end stands still.
+    """
+    tracker = new_tracker(view_margin_m=margin)
+    block = box_voxels((20.0, 4.0, 0.0), (32.0, 6.5, 3.0))
+    centres = (block + 0.5) * EDGE
+    out = []
+    for k in range(12):
+        pose = make_pose(np.eye(3), [6.0 + 1.0 * k, 0.0, 0.0])
+        seen = counted(block[centres[:, 1] <= 0.5 * (centres[:, 0] - pose[0, 3])])
+        clusters = Clusters(
+            frame_id=k, stamp_ns=k * PERIOD_NS, clusters=[seen], voxel_edge=EDGE, ego_pose=pose,
+            view=np.array([0.0, 0.0, 0.5, -0.5]),
+        )  # fmt: skip
+        out.append(tracker.process(clusters, ego(k, pose)))
+    return out
+
+
+def test_a_block_cut_by_the_images_side_edge_is_followed_at_its_far_end() -> None:
+    followed = block_cut_by_the_image(margin=0.5)
+    assert all(not o.moving for frame in followed for o in frame.obstacles)
+    (block,) = followed[-1].obstacles
+    assert block.speed < 0.5
+    # followed at the near end, the track takes the edge's slide for the block's speed
+    (slid,) = block_cut_by_the_image(margin=0.0)[-1].obstacles
+    assert slid.speed > 2.5
+
+
 # ------------------------------------------------------------------ bad input
 
 
@@ -447,7 +478,7 @@ def of_voxels(voxels: np.ndarray, cid: int = 0, rgb: tuple[float, float, float] 
 def test_anchor_stays_on_the_faces_in_view_while_the_far_side_grows() -> None:
     # a parked car right of the road: its rear (near x) and its road side (high y) face the camera
     short, long = surface((20.0, -4.0, 0.25), (21.0, -2.25, 1.5)), surface((20.0, -4.0, 0.25), (24.5, -2.25, 1.5))
-    points, side, _, _ = anchors([short, long], np.array([short.centroid, long.centroid]), np.eye(4), EDGE)
+    points, side, _, _, _ = anchors([short, long], np.array([short.centroid, long.centroid]), np.eye(4), EDGE)
     assert side.tolist() == [2, 2]
     a, b = points[0, 2], points[1, 2]
     assert abs(a[0] - b[0]) < 0.3 and abs(a[1] - b[1]) < 0.01  # the centroids are 1.75 m apart
@@ -497,7 +528,7 @@ def test_narrow_is_measured_across_the_line_of_sight() -> None:
     # a hedge along the right edge of the road, 10 m long: its near end is where the image's side cuts it
     hedge = counted(box_voxels((12.0, -7.5, 0.0), (22.0, -6.75, 1.5)))
     clusters = [car, walker, hedge]
-    points, _, _, narrow = anchors(clusters, np.array([c.centroid for c in clusters]), np.eye(4), EDGE)
+    points, _, _, narrow, _ = anchors(clusters, np.array([c.centroid for c in clusters]), np.eye(4), EDGE)
     assert narrow.tolist() == [False, True, True]
     assert points[0, 0, 0] == pytest.approx(15.125, abs=0.01)  # the car's front, not its side's middle
     assert points[2, 1, 0] == pytest.approx(17.125, abs=0.3)  # the hedge's middle, not its cut near end
@@ -508,7 +539,7 @@ def test_a_narrow_cluster_is_followed_at_its_points_median_range_a_wide_one_at_i
     car = smeared((20.0, -4.0, 0.25), (24.0, -1.5, 1.5), core_points=60)  # 2.5 m wide
     old = smeared((20.0, -0.25, 0.0), (20.5, 0.25, 1.75), core_points=60, fringe_points=None)
     clusters = [walker, car, old]
-    points, _, far, _ = anchors(clusters, np.array([c.centroid for c in clusters]), np.eye(4), EDGE)
+    points, _, far, _, _ = anchors(clusters, np.array([c.centroid for c in clusters]), np.eye(4), EDGE)
     assert points[0, 1, 0] == pytest.approx(20.125, abs=0.01)  # the core's first layer holds the median point
     assert points[1, 2, 0] == pytest.approx(19.125, abs=0.01)  # the near face, fringe and all
     assert points[2, 1, 0] == pytest.approx(19.125, abs=0.01)  # without counts: the near face, as before

@@ -282,6 +282,20 @@ def test_clusters_round_trip_through_the_codec() -> None:
     assert np.array_equal(back.clusters[0].voxels, out.clusters[0].voxels)
 
 
+def test_clusters_carry_the_image_side_edges_the_cloud_was_seen_within() -> None:
+    # a camera 1 m ahead of the vehicle's origin and 0.3 m left of it sees bearings from -0.4 to 0.6
+    slopes, ranges = np.linspace(-0.4, 0.6, 41), np.arange(2.0, 20.0, 0.5)
+    s, r = np.meshgrid(slopes, ranges, indexing="ij")
+    points = np.column_stack([1.0 + r.ravel(), 0.3 + (s * r).ravel(), np.zeros(s.size)]).astype(np.float32)
+    seen = PointCloud(frame_id=0, stamp_ns=0, points=points, colors=noisy_colour(GREY, len(points)),
+                      origin=np.array([1.0, 0.3, 1.5]))
+    out = decode(encode(mapper().process(seen, ego())), Clusters)
+    assert out.view == pytest.approx([1.0, 0.3, 0.6, -0.4])
+    # a cloud without points ahead has no edges: unknown, as in recordings made before the field
+    empty = PointCloud(frame_id=1, stamp_ns=0, points=np.zeros((0, 3), np.float32), colors=np.zeros((0, 3), np.uint8))
+    assert mapper().process(empty, ego(frame_id=1)).view.tolist() == [0.0, 0.0, 0.0, 0.0]
+
+
 def test_invalid_egomotion_restarts_the_map_from_that_frame() -> None:
     vm = mapper(keep_frames=5)
     vm.process(cloud(road(), box((6, -1, 0), (8, 1, 1.5), RED)), ego())

@@ -114,6 +114,12 @@ class StereoDepth:
     def _messages(
         frame: StereoFrame, points: Points, colors: Colors, disparity: DisparityMap
     ) -> tuple[PointCloud, Disparity]:
-        cloud = PointCloud(frame_id=frame.frame_id, stamp_ns=frame.stamp_ns, points=points, colors=colors)
+        cloud = PointCloud(
+            frame_id=frame.frame_id,
+            stamp_ns=frame.stamp_ns,
+            points=points,
+            colors=colors,
+            origin=np.array(frame.calib.cam_to_vehicle, dtype=np.float64)[:3, 3],
+        )
         disp = Disparity(frame_id=frame.frame_id, stamp_ns=frame.stamp_ns, disparity=disparity, calib=frame.calib)
         return cloud, disp

@@ -8,13 +8,14 @@ its speed (labelling.py). Everything lives in the world frame of the odometry, s
 over ground; ``velocity_rel`` subtracts the vehicle's own.
 
 The filter follows a cluster's faces turned to the camera (anchor.py), not its centroid, which
-slides as more or less of the object comes into view; the reported centroid is still the
-cluster's. A measurement further from the prediction than ``jump_nis`` allows is a cluster that
-changed shape (split, merged, another face in view): it re-anchors the position and leaves the
-velocity alone, since the step says nothing about how the object moves. The velocity so kept can
-be stale (learnt from a face that slid, then carried on by re-anchoring: on KITTI tracking 0001
-static structures kept 3-6 m/s for 10-20 frames), so the moving label also needs the slope of the
-track's last faces to agree (motion_window.py, labelling.py).
+slides as more or less of the object comes into view, or its far end where the image's side edge
+cuts its near one; the reported centroid is still the cluster's. A measurement further from the
+prediction than ``jump_nis`` allows is a cluster that changed shape (split, merged, another face
+in view): it re-anchors the position and leaves the velocity alone, since the step says nothing
+about how the object moves. The velocity so kept can be stale (learnt from a face that slid, then
+carried on by re-anchoring: on KITTI tracking 0001 static structures kept 3-6 m/s for 10-20
+frames), so the moving label also needs the slope of the track's last faces to agree
+(motion_window.py, labelling.py).
 
 Bad input is handled where it arrives and counted in ``counters``: clusters with non-finite
 geometry are dropped (``nan_clusters``); a frame whose id is not newer than the last is ignored
@@ -96,6 +97,7 @@ class Tracker:
         upright_accel_std: float | None = None,
         side_slice_m: float = 0.0,
         coasting: Coasting = NO_COASTING,
+        view_margin_m: float = 0.0,
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -119,6 +121,7 @@ class Tracker:
         self.upright_speed_std = upright_speed_std
         self.side_slice_m = side_slice_m
         self.coasting = coasting
+        self.view_margin_m = view_margin_m
         self.upright_accel_std = (
             None if upright_accel_std is None else np.array([upright_accel_std, upright_accel_std, self.accel_std[2]])
         )
@@ -165,6 +168,7 @@ class Tracker:
             upright_accel_std=t.upright_process_noise or None,
             side_slice_m=t.side_slice_m,
             coasting=Coasting(t.coast_merged_frames, t.coast_min_age, t.coast_max_speed_mps),
+            view_margin_m=t.view_margin_m,
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
@@ -178,7 +182,7 @@ class Tracker:
         self._predict(dt)
         sight = Sight(pose[0:3, 3], clusters.voxel_edge)
         pieces = self._gather(clusters, sight)
-        obs = self._observe(pieces, pose, clusters.voxel_edge)
+        obs = self._observe(pieces, pose, clusters.voxel_edge, clusters.view)
         r = self._cluster_cov(obs, pose, clusters.voxel_edge)
         rows, cols = self._associate(obs, r)
         if trusted:
@@ -246,8 +250,8 @@ class Tracker:
         margin, edge = self.fragment_margin, clusters.voxel_edge
         return gather(clusters.clusters, lo, hi, margin, edge, self.fragment_gap, self.standing, sight)
 
-    def _observe(self, clusters: list[Cluster], pose: NDArray, edge: float) -> Observations:
-        obs, dropped = observe(clusters, pose, edge)
+    def _observe(self, clusters: list[Cluster], pose: NDArray, edge: float, view: NDArray) -> Observations:
+        obs, dropped = observe(clusters, pose, edge, view, self.view_margin_m)
         self.counters["nan_clusters"] += dropped
         if len(obs) == 0:
             self.counters["empty_frames"] += 1
@@ -294,7 +298,7 @@ class Tracker:
 
     def _cluster_cov(self, obs: Observations, pose: NDArray, voxel_edge: float) -> NDArray:
         """How far each centroid can be trusted from the cluster alone (measurement.py)."""
-        r = stereo_covariance(obs.anchor, pose[0:3, 3], self.measurement_std, self.range_noise_per_m2)
+        r = stereo_covariance(obs.followed, pose[0:3, 3], self.measurement_std, self.range_noise_per_m2)
         return r + cut_covariance(obs.bbox_min, obs.bbox_max, pose, self.volume, voxel_edge, self.side_slice_m)
 
     def _correct(self, rows: NDArray, obs: Observations, r: NDArray) -> None:
@@ -303,6 +307,7 @@ class Tracker:
             return
         t = self.tracks
         self._turn_sides(rows, obs)
+        self._turn_ends(rows, obs)
         # a walker's or a pole's box changes with the fringe of stereo smear around it, which
         # hardly moves the median range of its points that a narrow cluster is followed at
         # (anchor.py): its extent change is no noise on that point (docs/results/tracking.md,
@@ -313,7 +318,7 @@ class Tracker:
         r = r + seen
         # adaptive noise: a cluster whose centroid keeps jumping by more than its covariance says
         # (a fragment of a split object, changing membership) is believed that much less
-        x_before, p_before, anchor = t.x[rows], t.p[rows], obs.anchor
+        x_before, p_before, anchor = t.x[rows], t.p[rows], obs.followed
         nis = kalman.normalised_innovation(x_before, p_before, anchor, r)
         r = r * np.maximum(t.nis[rows], 1.0)[:, None, None]
         x, p = kalman.update(x_before, p_before, anchor, r)
@@ -337,8 +342,9 @@ class Tracker:
         extent_step = np.abs(obs.extent - extent_before)[:, 0:2].max(axis=1)
         reshaped = (extent_step > self.reshape_m) & ~t.moving[rows]
         motion_window.restart(t.window_n, rows[jump | reshaped | refound])
-        motion_window.push(t.window, t.window_t, t.window_n, rows, anchor, self._clock)
-        motion_window.push(t.window_far, t.window_t.copy(), t.window_n.copy(), rows, anchor + obs.far, self._clock)
+        near = obs.anchor
+        motion_window.push(t.window, t.window_t, t.window_n, rows, near, self._clock)
+        motion_window.push(t.window_far, t.window_t.copy(), t.window_n.copy(), rows, near + obs.far, self._clock)
         t.nis[rows] += self.noise_adaptation * (np.where(jump, t.nis[rows], nis) - t.nis[rows])
         t.x[rows], t.p[rows] = x, p
         # a cluster suddenly wider than the object has been (its smoothed extent) has taken in a
@@ -380,6 +386,21 @@ class Tracker:
         motion_window.shift(t.window, rows_turned, now - before)
         motion_window.shift(t.window_far, rows_turned, now - before)
         t.side[rows_turned] = obs.side[turned]
+
+    def _turn_ends(self, rows: NDArray, obs: Observations) -> None:
+        """Follow the far end of a cluster the image's side edge cuts, and the near end again once it does not.
+
+        The state shifts by the cluster's length, as for a side face (``_turn_sides``); the speed
+        windows keep both ends apart and need no shift.
+        """
+        t = self.tracks
+        turned = np.flatnonzero(t.end[rows] != obs.cut)
+        if len(turned) == 0:
+            return
+        rows_turned = rows[turned]
+        sign = np.where(obs.cut[turned], 1.0, -1.0)
+        t.x[rows_turned, 0:3] += sign[:, None] * obs.far[turned]
+        t.end[rows_turned] = obs.cut[turned]
 
     def _advance_queues(self, rows: NDArray, elapsed: int, piece_of: dict[int, Cluster], sight: Sight) -> None:
         seen = np.zeros(len(self.tracks), dtype=bool)
@@ -442,10 +463,11 @@ class Tracker:
             TrackTable(
                 ids=ids,
                 queue=np.zeros(n, dtype=np.int8),
-                x=np.hstack([obs.anchor, np.zeros((n, 3))]),
+                x=np.hstack([obs.followed, np.zeros((n, 3))]),
                 p=self._initial_p(obs, r),
-                offset=obs.centroid - obs.anchor,
+                offset=obs.centroid - obs.followed,
                 side=obs.side.copy(),
+                end=obs.cut.copy(),
                 hits=np.ones(n, dtype=np.int64),
                 misses=np.zeros(n, dtype=np.int64),
                 age=np.ones(n, dtype=np.int64),

@@ -25,6 +25,7 @@ class Observations:
     side: NDArray  # (m,) the side in view
     far: NDArray  # (m, 3) from the near end to the far end of the cluster along the vehicle's x
     narrow: NDArray  # (m,) followed at the median range of its points, not its near face (anchor.py)
+    cut: NDArray  # (m,) its near end is where the image's side edge cuts it: followed at its far end
     bbox_min: NDArray
     bbox_max: NDArray
     rgb: NDArray
@@ -41,6 +42,11 @@ class Observations:
         """(m, 3) the point on the side in view."""
         return self.anchors[np.arange(len(self)), self.side]
 
+    @cached_property
+    def followed(self) -> NDArray:
+        """(m, 3) the point the filter measures: the anchor, or its far end where the near one is cut."""
+        return self.anchor + self.far * self.cut[:, None]
+
     def __len__(self) -> int:
         return int(self.index.shape[0])
 
@@ -49,7 +55,9 @@ class Observations:
         return Observations(*(getattr(self, name)[rows] for name in self.__dataclass_fields__))
 
 
-def observe(clusters: list[Cluster], pose: NDArray, edge: float) -> tuple[Observations, int]:
+def observe(
+    clusters: list[Cluster], pose: NDArray, edge: float, view: NDArray | None = None, view_margin: float = 0.0
+) -> tuple[Observations, int]:
     """Stack the clusters' features; return them and how many were dropped as non-finite.
 
     A cluster with a NaN or infinite centroid, box, colour or density cannot be predicted, compared
@@ -65,7 +73,9 @@ def observe(clusters: list[Cluster], pose: NDArray, edge: float) -> tuple[Observ
     scalars = np.hstack([stacked("density", 1), stacked("volume", 1)])
     finite = np.isfinite(geometry).all(axis=1) & np.isfinite(colour).all(axis=1) & np.isfinite(scalars).all(axis=1)
     keep = np.flatnonzero(finite)
-    points, side, far, narrow = anchors([clusters[i] for i in keep.tolist()], geometry[keep, 0:3], pose, edge)
+    points, side, far, narrow, cut = anchors(
+        [clusters[i] for i in keep.tolist()], geometry[keep, 0:3], pose, edge, view, view_margin
+    )
     obs = Observations(
         index=keep,
         centroid=geometry[keep, 0:3],
@@ -73,6 +83,7 @@ def observe(clusters: list[Cluster], pose: NDArray, edge: float) -> tuple[Observ
         side=side,
         far=far,
         narrow=narrow,
+        cut=cut,
         bbox_min=geometry[keep, 3:6],
         bbox_max=geometry[keep, 6:9],
         rgb=colour[keep, 0:3],

@@ -36,6 +36,7 @@ class TrackTable:
     p: NDArray = _empty(6, 6)  # Kalman covariance
     offset: NDArray = _empty(3)  # last cluster centroid minus the filter position it gave
     side: NDArray = _empty(dtype=np.int8)  # which side face of its clusters the filter follows (anchor.py)
+    end: NDArray = _empty(dtype=bool)  # it follows its clusters' far end: their near end is cut by the image
     hits: NDArray = _empty(dtype=np.int64)  # consecutive frames seen
     misses: NDArray = _empty(dtype=np.int64)  # frames since last seen
     age: NDArray = _empty(dtype=np.int64)  # frames since birth

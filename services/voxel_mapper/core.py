@@ -42,6 +42,25 @@ from services.voxel_mapper.voxel_map import VoxelMap
 
 Ground = FlatGround | TerrainProfile
 
+#: points nearer than this (m, along the vehicle's x from where they were seen) give no bearing.
+VIEW_MIN_X: float = 1.0
+
+
+def view_limits(cloud: PointCloud) -> npt.NDArray[np.float64]:
+    """Where the cloud was seen from (x, y) and the slopes of its leftmost and rightmost bearings.
+
+    Every point is a pixel reprojected, so no bearing lies outside the image: the extremes are the
+    side edges of what the matcher gave depth to, narrower than the lens's by the band of columns
+    it leaves without disparity. Without points ahead the view is unknown (both slopes 0).
+    """
+    origin = np.asarray(cloud.origin, dtype=np.float64)
+    points = np.asarray(cloud.points, dtype=np.float64)
+    ahead = points[(points[:, 0] > origin[0] + VIEW_MIN_X) & np.isfinite(points).all(axis=1)]
+    if len(ahead) == 0:
+        return np.array([origin[0], origin[1], 0.0, 0.0])
+    slope = (ahead[:, 1] - origin[1]) / (ahead[:, 0] - origin[0])
+    return np.array([origin[0], origin[1], slope.max(), slope.min()])
+
 
 class VoxelMapper:
     """Pure core of the voxel_mapper service: PointCloud + EgoMotion -> Clusters."""
@@ -111,7 +130,7 @@ class VoxelMapper:
                                           self.map.edge)
         return Clusters(frame_id=cloud.frame_id, stamp_ns=cloud.stamp_ns, clusters=describe(self.map, labels),
                         voxel_edge=self.map.edge, world_epoch=ego.world_epoch, ego_pose=np.array(ego.pose),
-                        voxel_count=self.map.n)
+                        voxel_count=self.map.n, view=view_limits(cloud))
 
     @staticmethod
     def _checked(cloud: PointCloud) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
