@@ -191,7 +191,7 @@ class TrackerConfig:
     accept_frames: int = 2  # 3: urban moving TP 3-6 points lower (pedestrians seen intermittently)
     accept_misses: int = 0  # frames in a row a new track may go unseen before it is dropped (paper: 0)
     ghost_frames: int = 5
-    moving_on_mps: float = 0.7  # evaluation: moving >= 1.0 m/s, stationary < 0.3 m/s
+    moving_on_mps: float = 0.55  # evaluation: moving >= 1.0 m/s, stationary < 0.3 m/s (0.7 until session 24)
     moving_off_mps: float = 0.4
     moving_sigma_k: float = 1.5  # the label follows speed - k * speed std (minus the box-growth slide)
     moving_min_frames: int = 4  # frames of track before it may be called moving

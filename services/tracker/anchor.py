@@ -157,11 +157,9 @@ def anchors(
     side[has] = np.where(y_hi < 0.0, 2, np.where(y_lo > 0.0, 0, 1))[has]
     far[has] = ((far_x - x)[:, None] * rotation[:, 0][None, :])[has]
     if view is not None and view_margin > 0.0 and view[2] > view[3]:
-        # how far inside the image's side edges (m, sideways) each voxel lies; a cluster reaching
-        # them has its near end where the edge cuts it, which slides with the vehicle
-        dx, dy = local[:, 0] - view[0], local[:, 1] - view[1]
-        inside = np.minimum(view[2] * dx - dy, dy - view[3] * dx)
-        nearest = np.full(n, np.inf)
-        nearest[has] = np.minimum.reduceat(inside, starts[has])
-        cut = has & ~narrow & (nearest <= view_margin)
+        # how far inside the image's side edges (m, sideways) the faces' near corners lie; a cluster
+        # reaching them has its near end where the edge cuts it, which slides with the vehicle
+        dx = near_x - view[0]
+        inside = np.minimum(view[2] * dx - (y_hi - view[1]), (y_lo - view[1]) - view[3] * dx)
+        cut = has & ~narrow & (inside <= view_margin)
     return out, side, far, narrow, cut

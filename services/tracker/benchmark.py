@@ -38,6 +38,10 @@ def box_cluster(cid: int, lo: np.ndarray, size: np.ndarray, rgb: np.ndarray) -> 
     )  # fmt: skip
 
 
+#: the synthetic rig's image edges (dy / dx = +-0.533 from the origin): clusters near them are cut.
+VIEW = np.array([0.0, 0.0, 0.533, -0.533])
+
+
 def scene(frames: int, objects: int, seed: int) -> list[tuple[Clusters, EgoMotion]]:
     rng = np.random.default_rng(seed)
     start = np.column_stack([rng.uniform(3, 25, objects), rng.uniform(-7, 7, objects), np.full(objects, 0.25)])
@@ -50,7 +54,8 @@ def scene(frames: int, objects: int, seed: int) -> list[tuple[Clusters, EgoMotio
         clusters = [box_cluster(i, lo[i], shape[i], rgb[i]) for i in range(objects)]
         stamp = k * PERIOD_NS
         out.append((
-            Clusters(frame_id=k, stamp_ns=stamp, clusters=clusters, voxel_edge=EDGE, world_epoch=0, ego_pose=np.eye(4)),
+            Clusters(frame_id=k, stamp_ns=stamp, clusters=clusters, voxel_edge=EDGE, world_epoch=0, ego_pose=np.eye(4),
+                     view=VIEW),
             EgoMotion(frame_id=k, stamp_ns=stamp, pose=np.eye(4), valid=True, world_epoch=0),
         ))  # fmt: skip
     return out

@@ -41,7 +41,7 @@ from services.tracker import kalman, motion_window
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
 from services.tracker.fragments import APART_BY_BOX, Sight, Standing, claims, gather, stand_apart
 from services.tracker.labelling import MotionLabeller
-from services.tracker.measurement import cut_covariance, stereo_covariance, visibility_covariance
+from services.tracker.measurement import cut_covariance, stereo_covariance, view_cut_covariance, visibility_covariance
 from services.tracker.motion_state import SLIDE_SMOOTHING, EgoVelocity, Hysteresis
 from services.tracker.observations import Observations, observe
 from services.tracker.queues import NO_COASTING, Coasting, advance, merged_away
@@ -299,7 +299,11 @@ class Tracker:
     def _cluster_cov(self, obs: Observations, pose: NDArray, voxel_edge: float) -> NDArray:
         """How far each centroid can be trusted from the cluster alone (measurement.py)."""
         r = stereo_covariance(obs.followed, pose[0:3, 3], self.measurement_std, self.range_noise_per_m2)
-        return r + cut_covariance(obs.bbox_min, obs.bbox_max, pose, self.volume, voxel_edge, self.side_slice_m)
+        r += cut_covariance(obs.bbox_min, obs.bbox_max, pose, self.volume, voxel_edge, self.side_slice_m)
+        across = obs.cut & (obs.side == 1)  # straddling the line of sight: cut sideways
+        if across.any():
+            r[across] += view_cut_covariance(obs.extent[across], pose)
+        return r
 
     def _correct(self, rows: NDArray, obs: Observations, r: NDArray) -> None:
         """Kalman correction of the associated tracks with their clusters' centroids."""
