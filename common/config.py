@@ -222,7 +222,7 @@ class TrackerConfig:
     coast_merged_frames: int = 3  # an upright track unseen inside a seen tracked box stays tracked this long; 0: off
     coast_min_age: int = 8  # ... if this many frames old (measured 0: a young track's wrong velocity coasted too)
     coast_max_speed_mps: float = 5.0  # ... and no faster (a car's rear is upright too; 3 measured the same)
-    view_margin_m: float = 0.5  # a cluster this near (m) the image's side edge: followed at its far end (1.0 the same)
+    view_margin_m: float = 0.5  # a cluster this near (m) the image's side edge: followed at its far end (1.0: alike)
 
 
 @dataclass

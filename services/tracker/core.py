@@ -322,19 +322,19 @@ class Tracker:
         r = r + seen
         # adaptive noise: a cluster whose centroid keeps jumping by more than its covariance says
         # (a fragment of a split object, changing membership) is believed that much less
-        x_before, p_before, anchor = t.x[rows], t.p[rows], obs.followed
-        nis = kalman.normalised_innovation(x_before, p_before, anchor, r)
+        x_before, p_before, point = t.x[rows], t.p[rows], obs.followed
+        nis = kalman.normalised_innovation(x_before, p_before, point, r)
         r = r * np.maximum(t.nis[rows], 1.0)[:, None, None]
-        x, p = kalman.update(x_before, p_before, anchor, r)
+        x, p = kalman.update(x_before, p_before, point, r)
         # a centroid further off than the filter allows is a cluster that changed (split, merge,
         # another face in view), not the object moving: re-anchor the position, keep the velocity
         jump = nis * 3.0 > self.jump_nis
         # a ghost found again metres from where it was predicted may be another object: one seen
         # a few frames, its speed unknown, takes the step as speed, and a window spanning the gap
         # agrees; the window starts again (synthetic urban-s1: a standing walker called moving at 6 m/s)
-        off = np.linalg.norm((anchor - x_before[:, 0:3])[:, 0:2], axis=1)
+        off = np.linalg.norm((point - x_before[:, 0:3])[:, 0:2], axis=1)
         refound = (t.queue[rows] == GHOST) & (off > self.revive_restart_m) & (self.revive_restart_m > 0.0)
-        x[jump, 0:3] = anchor[jump]
+        x[jump, 0:3] = point[jump]
         x[jump, 3:6] = x_before[jump, 3:6]
         p[jump] = p_before[jump]
         p[jump, 0:3, 0:3] = r[jump]
@@ -346,9 +346,8 @@ class Tracker:
         extent_step = np.abs(obs.extent - extent_before)[:, 0:2].max(axis=1)
         reshaped = (extent_step > self.reshape_m) & ~t.moving[rows]
         motion_window.restart(t.window_n, rows[jump | reshaped | refound])
-        near = obs.anchor
-        motion_window.push(t.window, t.window_t, t.window_n, rows, near, self._clock)
-        motion_window.push(t.window_far, t.window_t.copy(), t.window_n.copy(), rows, near + obs.far, self._clock)
+        motion_window.push(t.window, t.window_t, t.window_n, rows, obs.anchor, self._clock)
+        motion_window.push(t.window_far, t.window_t.copy(), t.window_n.copy(), rows, obs.anchor + obs.far, self._clock)
         t.nis[rows] += self.noise_adaptation * (np.where(jump, t.nis[rows], nis) - t.nis[rows])
         t.x[rows], t.p[rows] = x, p
         # a cluster suddenly wider than the object has been (its smoothed extent) has taken in a
