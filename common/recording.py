@@ -129,7 +129,8 @@ class RecordingWriter:
         except OSError as exc:
             raise RecordingError(f"cannot write: {exc.strerror}", str(self.path)) from None
         self._writer = Writer(self._file, chunk_size=chunk_size, compression=COMPRESSIONS[compression])
-        self._writer.start(profile=PROFILE, library="stereovox")
+        with self._writing():
+            self._writer.start(profile=PROFILE, library="stereovox")
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._sequence: dict[str, int] = {}
@@ -143,14 +144,27 @@ class RecordingWriter:
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
         self.close(success=exc_type is None)
 
+    @contextlib.contextmanager
+    def _writing(self) -> Iterator[None]:
+        """A failed write (a full disk) as an error naming the file.
+
+        Metadata goes straight to the file: once the file's buffer fills, the header and the
+        configuration already reach the disk while the writer is being opened.
+        """
+        try:
+            yield
+        except OSError as exc:
+            raise RecordingError(f"cannot write: {exc.strerror or exc}", str(self.path)) from None
+
     def add_metadata(self, name: str, data: dict[str, Any]) -> None:
         """Store a named mapping; values that are not strings are stored as JSON."""
-        self._writer.add_metadata(name, {k: v if isinstance(v, str) else json.dumps(v) for k, v in data.items()})
+        with self._writing():
+            self._writer.add_metadata(name, {k: v if isinstance(v, str) else json.dumps(v) for k, v in data.items()})
 
     def describe(self, config: dict[str, Any] | None, info: dict[str, Any] | None = None) -> None:
         """Store the effective configuration and the recording's facts (source, gt_complete, ...)."""
         if config is not None:
-            self._writer.add_metadata(CONFIG_METADATA, {"json": json.dumps(config, sort_keys=True)})
+            self.add_metadata(CONFIG_METADATA, {"json": json.dumps(config, sort_keys=True)})
         if info:
             self.add_metadata(INFO_METADATA, info)
 

@@ -119,3 +119,10 @@ def test_unwritable_path_names_it(tmp_path: Path) -> None:
     with pytest.raises(RecordingError, match="cannot write") as info:
         RecordingWriter(blocker / "out.mcap")
     assert str(blocker / "out.mcap") in str(info.value)
+
+
+def test_a_full_disk_while_the_configuration_is_written_names_the_file() -> None:
+    # /dev/full refuses every write; a configuration bigger than the file's buffer reaches it at once
+    writer = RecordingWriter("/dev/full")
+    with pytest.raises(RecordingError, match="/dev/full: cannot write: No space left on device"):
+        writer.describe({"padding": "x" * 20_000})
