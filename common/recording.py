@@ -123,13 +123,10 @@ class RecordingWriter:
         self.path = Path(path)
         self._atomic = atomic
         self._target = self.path.with_name(self.path.name + ".part") if atomic else self.path
-        try:
+        with self._writing():
             self._target.parent.mkdir(parents=True, exist_ok=True)
             self._file: IO[bytes] = open(self._target, "wb")  # noqa: SIM115 - closed in close()
-        except OSError as exc:
-            raise RecordingError(f"cannot write: {exc.strerror}", str(self.path)) from None
-        self._writer = Writer(self._file, chunk_size=chunk_size, compression=COMPRESSIONS[compression])
-        with self._writing():
+            self._writer = Writer(self._file, chunk_size=chunk_size, compression=COMPRESSIONS[compression])
             self._writer.start(profile=PROFILE, library="stereovox")
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
@@ -146,7 +143,7 @@ class RecordingWriter:
 
     @contextlib.contextmanager
     def _writing(self) -> Iterator[None]:
-        """A failed write (a full disk) as an error naming the file.
+        """A failed open or write (no such directory, a full disk) as an error naming the file.
 
         Metadata goes straight to the file: once the file's buffer fills, the header and the
         configuration already reach the disk while the writer is being opened.

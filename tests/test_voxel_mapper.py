@@ -291,6 +291,9 @@ def test_clusters_carry_the_image_side_edges_the_cloud_was_seen_within() -> None
                       origin=np.array([1.0, 0.3, 1.5]))
     out = decode(encode(mapper().process(seen, ego())), Clusters)
     assert out.view == pytest.approx([1.0, 0.3, 0.6, -0.4])
+    # a non-finite point (only ever built in process: the bus refuses them) leaves the edges as they are
+    points[0, 1] = np.nan
+    assert mapper().process(seen, ego()).view == pytest.approx([1.0, 0.3, 0.6, -0.4])
     # a cloud without points ahead has no edges: unknown, as in recordings made before the field
     empty = PointCloud(frame_id=1, stamp_ns=0, points=np.zeros((0, 3), np.float32), colors=np.zeros((0, 3), np.uint8))
     assert mapper().process(empty, ego(frame_id=1)).view.tolist() == [0.0, 0.0, 0.0, 0.0]
