@@ -23,6 +23,9 @@ from common.scenarios.world import EgoProfile, Look, Path, World
 S_FROM, S_TO = -15.0, 230.0
 DUSK = Look(noise_sigma=3.0, exposure_ratio=1.04, blur_sigma=0.8, brightness=0.35, contrast=0.3)
 CITY_MARKINGS = (Marking(0.0, period=9.0, on=3.0), Marking(-3.4), Marking(3.4))
+#: m/s^2 a walker sets off and stops at: 1.4-1.8 m/s within about a second, two steps of gait
+#: initiation, not in one 0.1 s frame (which no filter can follow and no walker does)
+WALKER_ACCEL = 1.5
 
 
 @dataclass(frozen=True)
@@ -68,14 +71,16 @@ def crossing(seed: int) -> World:
     rng = street.rng(1)
     junction = (40.0, 52.0)
     street.street(S_FROM, S_TO, gaps=((zebra[0] - 4, junction[1]),))
-    # walkers cross from both kerbs while the ego waits; they clear its lane before it moves off
+    # walkers cross from both kerbs while the ego waits; they clear its lane before it moves off.
+    # Each sets off and stops at WALKER_ACCEL, so the crossing takes speed / WALKER_ACCEL longer
     for k in range(8):
         side = -1 if k % 2 == 0 else 1
         speed = rng.uniform(1.4, 1.8)
         start = 0.05 + 0.35 * k + rng.uniform(0, 0.3)
         width = 2 * (road.half_width + 1.0)
         path = Path(rng.uniform(*zebra), side * (road.half_width + 1.0), vd=-side * speed,
-                    t_start=start, t_end=start + width / speed, yaw=-side * math.pi / 2)
+                    t_start=start, t_end=start + width / speed + speed / WALKER_ACCEL, yaw=-side * math.pi / 2,
+                    accel=WALKER_ACCEL)
         street.add(props.pedestrian, path, props.pick(rng, props.CLOTHES), props.pick(rng, props.CLOTHES[:3]))
     # cars crossing on the side road, one each way, while the ego stands
     for side, start, lane in ((-1, 1.05, 47.6), (1, 4.05, 44.4)):

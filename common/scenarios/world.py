@@ -3,7 +3,8 @@
 Objects are unions of boxes in their own frame (x along their heading, z up from the surface
 they stand on); the ground-truth box is the object's whole extent. Paths are given in road
 coordinates with a motion interval, so an object either moves at a constant, clearly non-zero
-speed or stands exactly still, and its true velocity is exact.
+speed or stands exactly still, and its true velocity is exact; only a walker setting off or
+stopping passes through the speeds in between, at a walker's rate.
 """
 
 from __future__ import annotations
@@ -41,7 +42,12 @@ class Part:
 
 @dataclass(frozen=True)
 class Path:
-    """Road-coordinate motion at (vs, vd) m/s during [t_start, t_end], standing still outside it."""
+    """Road-coordinate motion at (vs, vd) m/s during [t_start, t_end], standing still outside it.
+
+    With a finite ``accel`` (m/s^2) the object gathers speed from ``t_start`` and comes to a stop
+    at ``t_end`` at that rate, as a walker setting off from the kerb does; otherwise it changes
+    speed in an instant.
+    """
 
     s0: float
     d0: float
@@ -50,10 +56,31 @@ class Path:
     t_start: float = -math.inf  # (s0, d0) is where it is at max(t_start, 0)
     t_end: float = math.inf
     yaw: float = 0.0  # heading relative to the road's
+    accel: float = math.inf
 
     def road_at(self, t: float) -> tuple[float, float]:
-        m = min(max(t, self.t_start), self.t_end) - max(self.t_start, 0.0)
+        m = self._full_speed_s(min(max(t, self.t_start), self.t_end)) - self._full_speed_s(max(self.t_start, 0.0))
         return self.s0 + self.vs * m, self.d0 + self.vd * m
+
+    def _full_speed_s(self, t: float) -> float:
+        """Distance travelled by ``t`` (within the motion interval), in seconds at full speed."""
+        speed = math.hypot(self.vs, self.vd)
+        if math.isinf(self.accel) or speed == 0.0:
+            return t
+        ramp = speed / self.accel  # seconds to full speed
+        if math.isinf(self.t_start):
+            end = self.t_end - ramp
+            return t - (0.5 * (t - end) ** 2 / ramp if t > end else 0.0)
+        u, span = t - self.t_start, self.t_end - self.t_start
+        ramp = min(ramp, 0.5 * span)  # a short walk never reaches full speed
+        rate = self.accel / speed  # of the full speed, per second
+        if u <= ramp:
+            return 0.5 * rate * u * u
+        up = 0.5 * rate * ramp * ramp
+        if u <= span - ramp:
+            return up + rate * ramp * (u - ramp)
+        left = span - u
+        return 2.0 * up + rate * ramp * (span - 2.0 * ramp) - 0.5 * rate * left * left
 
     def moving_at(self, t: float) -> bool:
         return (self.vs != 0.0 or self.vd != 0.0) and self.t_start < t < self.t_end
