@@ -156,8 +156,8 @@ SCENARIOS: dict[str, Scenario] = {
     s.name: s
     for s in (
         Scenario("urban", "city street, ego 9-11.5 m/s into a bend; parked and moving cars, walkers, a cyclist", urban),
-        Scenario("crossing", "stop-and-go at a zebra: walkers and two cars cross ahead; a lorry fills a third "
-                 "of the view", crossing),
+        Scenario("crossing", f"stop-and-go at a zebra: walkers (setting off and stopping at {WALKER_ACCEL} m/s^2) "
+                 "and two cars cross ahead; a lorry fills a third of the view", crossing),
         Scenario("overtake", "three lanes one way at 12 m/s: overtaking, overtaken, lead and oncoming traffic "
                  "(0-20 m/s relative)", overtake),
         Scenario("hanging", "an overhanging sign, a height barrier over the road, U-shaped (concave) fences", hanging),
