@@ -97,9 +97,10 @@ def plot_sweep(rows: Sequence[dict[str, float]], path: str | Path, title: str = 
     twin.plot(where, [r["clusters"] for r in rows], "o-", color="#c0504d", label="clusters per frame")
     twin.set_ylabel("clusters per frame (median)")
     ax.set_title(title or "Voxel map + clustering time against voxel edge (cf. the paper's Fig. 5)")
+    # below the plot: inside it the second axis's line is drawn over the legend
     handles = ax.get_legend_handles_labels()[0] + twin.get_legend_handles_labels()[0]
-    ax.legend(handles, [h.get_label() for h in handles], loc="upper left", fontsize=8)
-    fig.tight_layout()
+    fig.legend(handles, [h.get_label() for h in handles], loc="lower center", ncol=3, fontsize=8)
+    fig.tight_layout(rect=(0.0, 0.07, 1.0, 1.0))
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out)
