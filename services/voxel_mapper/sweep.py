@@ -38,8 +38,9 @@ def scaled(cfg: Config, edge: float) -> Config:
     return out
 
 
-def edge_sweep(clouds: Sequence[PointCloud], egos: Sequence[EgoMotion], edges: Sequence[float] = EDGES,
-               cfg: Config | None = None) -> list[dict[str, float]]:
+def edge_sweep(
+    clouds: Sequence[PointCloud], egos: Sequence[EgoMotion], edges: Sequence[float] = EDGES, cfg: Config | None = None
+) -> list[dict[str, float]]:
     """Per voxel edge (limits scaled): median wall and CPU milliseconds per frame, clusters and voxels.
 
     CPU time (this process) is quoted beside wall time because on a shared machine wall time
@@ -61,20 +62,31 @@ def edge_sweep(clouds: Sequence[PointCloud], egos: Sequence[EgoMotion], edges: S
             cpu.append((time.process_time() - start_cpu) * 1e3)
             counts.append(len(out.clusters))
             voxels.append(out.voxel_count)
-        rows.append({"edge_m": float(edge), "ms": float(np.median(times)), "ms_p95": float(np.percentile(times, 95)),
-                     "cpu_ms": float(np.median(cpu)), "clusters": float(np.median(counts)),
-                     "voxels": float(np.median(voxels))})
+        rows.append(
+            {
+                "edge_m": float(edge),
+                "ms": float(np.median(times)),
+                "ms_p95": float(np.percentile(times, 95)),
+                "cpu_ms": float(np.median(cpu)),
+                "clusters": float(np.median(counts)),
+                "voxels": float(np.median(voxels)),
+            }
+        )
     return rows
 
 
 def table(rows: Sequence[dict[str, float]]) -> str:
     """The sweep as a Markdown table."""
-    lines = ["| edge (m) | wall ms / frame (median) | wall p95 | CPU ms / frame (median) | clusters / frame | voxels |",
-             "| --- | --- | --- | --- | --- | --- |"]
+    lines = [
+        "| edge (m) | wall ms / frame (median) | wall p95 | CPU ms / frame (median) | clusters / frame | voxels |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
     nan = float("nan")
     for r in rows:
-        lines.append(f"| {r['edge_m']:.2f} | {r['ms']:.1f} | {r.get('ms_p95', nan):.1f} | {r.get('cpu_ms', nan):.1f} | "
-                     f"{r['clusters']:.0f} | {r.get('voxels', nan):.0f} |")
+        lines.append(
+            f"| {r['edge_m']:.2f} | {r['ms']:.1f} | {r.get('ms_p95', nan):.1f} | {r.get('cpu_ms', nan):.1f} | "
+            f"{r['clusters']:.0f} | {r.get('voxels', nan):.0f} |"
+        )
     return "\n".join(lines)
 
 
