@@ -377,7 +377,12 @@ def test_json_last_line_has_every_key_and_plots_are_written(tmp_path: Path) -> N
     assert result["moving"]["tp"] == 10
     # the breakdown goes beside the JSON, never into stdout's last line
     assert "moving truth-frames by outcome and clusters (10 scored)" in out.stderr
-    assert sorted(p.name for p in plots.iterdir()) == ["latency.png", "speed_error.png", "trajectory.png"]
+    assert sorted(p.name for p in plots.iterdir()) == [
+        "latency.png",
+        "moving_outcomes.png",
+        "speed_error.png",
+        "trajectory.png",
+    ]
 
 
 def test_why_puts_every_scored_truth_frame_in_one_row(tmp_path: Path) -> None:

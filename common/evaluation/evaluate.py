@@ -232,10 +232,15 @@ def run(args: argparse.Namespace) -> int:
 
     run_inputs = read_inputs(args.recording, allow_truncated=args.partial)
     ev = evaluate_run(run_inputs)
+    why = None
+    if args.why or args.plots is not None:
+        from common.evaluation.breakdown import breakdown
+
+        why = breakdown(run_inputs, ev.frames)
     if args.plots is not None:
         from common.evaluation.plots import write_plots
 
-        for written in write_plots(ev, args.plots):
+        for written in write_plots(ev, args.plots, why):
             print(f"wrote {written}", file=sys.stderr)
     if args.json:
         for note in ev.notes:
@@ -243,9 +248,8 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(ev.result))
     else:
         print(format_table(ev.result, ev.notes))
-    if args.why:
-        from common.evaluation.breakdown import breakdown, format_breakdown
+    if why is not None and args.why:
+        from common.evaluation.breakdown import format_breakdown
 
-        table = format_breakdown(breakdown(run_inputs, ev.frames))
-        print(table, file=sys.stderr if args.json else sys.stdout)
+        print(format_breakdown(why), file=sys.stderr if args.json else sys.stdout)
     return 0

@@ -1,8 +1,10 @@
-"""``--plots DIR``: the three pictures that explain an evaluation's numbers at a glance.
+"""``--plots DIR``: the pictures that explain an evaluation's numbers at a glance.
 
 Trajectories show where odometry drift comes from, the speed-error histogram whether the RMSE is
 a few outliers or a bias, and per-stage latency over time whether a slow stage is slow always or
-only in bursts (contention, a garbage collection, a scene with many clusters).
+only in bursts (contention, a garbage collection, a scene with many clusters). The moving
+outcomes (``evaluate --why`` as bars) show which kind of object is missed, and whether the tracker
+lost it (a wrong label) or the voxel mapper did (no track, the object inside a neighbour's cluster).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import numpy as np
 from common.errors import InputError
 
 if TYPE_CHECKING:
+    from common.evaluation.breakdown import Breakdown
     from common.evaluation.evaluate import Evaluation
 
 
@@ -79,8 +82,42 @@ def _latency(ev: Evaluation, path: Path) -> Path | None:
     return path
 
 
-def write_plots(ev: Evaluation, out_dir: Path) -> list[Path]:
-    """Write whichever plots the recording has data for; returns the files written."""
+def _moving_outcomes(why: Breakdown, path: Path) -> Path | None:
+    from common.evaluation.breakdown import FOUND, NO_TRACK, WRONG_LABEL
+
+    if not why.moving:
+        return None
+    plt = _pyplot()
+    classes = sorted({cls for cls, _, _ in why.moving})
+    parts = (  # (label, colour, which rows)
+        ("found", "#4c9a2a", lambda o, s: o == FOUND),
+        ("tracked, labelled stationary", "#e39b2d", lambda o, s: o == WRONG_LABEL),
+        ("no track, a cluster of its own", "#8064a2", lambda o, s: o == NO_TRACK and s in ("one", "split")),
+        ("no track, inside a neighbour's cluster", "#c0504d", lambda o, s: o == NO_TRACK and s == "merged"),
+        ("no track, no cluster", "#9a9a9a", lambda o, s: o == NO_TRACK and s in ("none", "no clusters")),
+    )
+    fig, ax = plt.subplots(figsize=(7, 0.6 * len(classes) + 1.6))
+    left = np.zeros(len(classes))
+    for label, colour, takes in parts:
+        counts = np.zeros(len(classes))
+        for (cls, outcome, segment), n in why.moving.items():
+            counts[classes.index(cls)] += n if takes(outcome, segment) else 0
+        ax.barh(classes, counts, left=left, color=colour, label=label)
+        left += counts
+    ax.set_xlabel("moving truth-frames scored")
+    ax.set_title("what became of the moving objects, per class")
+    ax.invert_yaxis()
+    ax.legend(fontsize="small", loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=2)
+    fig.savefig(path, dpi=100, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def write_plots(ev: Evaluation, out_dir: Path, why: Breakdown | None = None) -> list[Path]:
+    """Write whichever plots the recording has data for; returns the files written.
+
+    ``why`` (breakdown.py) adds the moving objects' outcomes per class.
+    """
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -89,5 +126,6 @@ def write_plots(ev: Evaluation, out_dir: Path) -> list[Path]:
         _trajectory(ev, out_dir / "trajectory.png"),
         _speed_histogram(ev, out_dir / "speed_error.png"),
         _latency(ev, out_dir / "latency.png"),
+        None if why is None else _moving_outcomes(why, out_dir / "moving_outcomes.png"),
     ]
     return [p for p in written if p is not None]
