@@ -101,7 +101,8 @@ def _moving_outcomes(why: Breakdown, path: Path) -> Path | None:
     for label, colour, takes in parts:
         counts = np.zeros(len(classes))
         for (cls, outcome, segment), n in why.moving.items():
-            counts[classes.index(cls)] += n if takes(outcome, segment) else 0
+            if takes(outcome, segment):
+                counts[classes.index(cls)] += n
         ax.barh(classes, counts, left=left, color=colour, label=label)
         left += counts
     ax.set_xlabel("moving truth-frames scored")
