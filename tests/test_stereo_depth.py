@@ -274,6 +274,31 @@ def test_the_sky_mask_alone_empties_the_sky_and_keeps_the_wall() -> None:
     assert np.isfinite(masked.disparity[70:, 40:]).mean() > 0.95
 
 
+def test_sky_seen_under_a_gantry_gives_no_points_when_gaps_are_sky() -> None:
+    """A textured gantry at 2.5 m (bar rows 20-29, posts down to the wall) in the sky, the sky under its bar.
+
+    SGM carries the bar's disparity down into the flat strip beneath it, which the open-sky mask
+    cannot reach; ``sky_gap_colour`` finds the strip by the sky's colour on its rows.
+    """
+    frame, rng = _under_a_sky(195, 220), np.random.default_rng(2)
+    left, right = frame.left.copy(), frame.right.copy()
+    d_bar = round(FX * BASELINE / BOX_DEPTH)
+    gantry = blob_texture(rng, 60, 180)
+    shape = np.zeros((60, 180), dtype=bool)
+    shape[20:30], shape[20:, :12], shape[20:, -12:] = True, True, True
+    for image, shift in ((left, 0), (right, d_bar)):
+        view = image[:60, 100 - shift : 280 - shift]
+        view[shape] = gantry[shape]
+    gantried = dataclasses.replace(frame, left=left, right=right)
+    strip = (slice(34, 56), slice(116, 264))
+    _, open_only = _core(min_texture=0, sky_gap_colour=0).process(gantried)
+    _, with_gaps = _core(min_texture=0, sky_gap_colour=10).process(gantried)
+    assert np.isfinite(open_only.disparity[strip]).sum() > 500
+    assert np.isfinite(with_gaps.disparity[strip]).sum() < 20
+    assert np.isfinite(with_gaps.disparity[22:28, 116:264]).mean() > 0.9  # the bar keeps its points
+    assert np.isfinite(with_gaps.disparity[70:, 40:]).mean() > 0.95
+
+
 def test_hidden_pixels_take_the_surface_beside_them_but_not_across_a_colour_edge() -> None:
     """Row 0: left border unseen (match left of the right image); row 1: background hidden by a foreground."""
     image = np.full((3, 40, 3), 100, np.uint8)

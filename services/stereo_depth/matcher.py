@@ -50,7 +50,7 @@ class MultiResolutionMatcher:
         hidden_fill: tuple[int, int] = (0, 0),
         min_texture: float = 0.0,
         subpixel: SubpixelParams | None = None,
-        sky: tuple[int, float] = (0, 0.0),
+        sky: tuple[int, float, float] = (0, 0.0, 0.0),
     ) -> None:
         if lr_check not in LR_MODES:
             raise ConfigError(f"stereo.lr_check {lr_check!r} unknown; allowed: {LR_MODES}")
@@ -65,7 +65,7 @@ class MultiResolutionMatcher:
         self.hidden_colour_step, self.hidden_max_px = hidden_fill
         self.min_texture = min_texture
         self.subpixel = subpixel
-        self.sky_window_px, self.sky_max_gradient = sky
+        self.sky_window_px, self.sky_max_gradient, self.sky_gap_colour = sky
         #: milliseconds of the last ``match`` per step: sgbm_coarse, sgbm_fine, lr_check, fill, subpixel, sky.
         self.timings_ms: dict[str, float] = {}
 
@@ -105,7 +105,7 @@ class MultiResolutionMatcher:
             )
         return cls(
             fine, coarse, cfg.lr_check, cfg.lr_max_diff_px, cfg.fill_support_px, cfg.color_matching, hidden,
-            cfg.min_texture, subpixel, (cfg.sky_window_px, cfg.sky_max_gradient),
+            cfg.min_texture, subpixel, (cfg.sky_window_px, cfg.sky_max_gradient, cfg.sky_gap_colour),
         )  # fmt: skip
 
     def match(self, left_rgb: Image, right_rgb: Image) -> DisparityMap:
@@ -116,7 +116,7 @@ class MultiResolutionMatcher:
         fused = self._timed("fill", lambda: self._fuse(fine, coarse_left, left))
         fused = self._timed("subpixel", lambda: self._refine(fused, left, right))
         fused = self._timed("fill", lambda: self._fill_hidden(fused, left))
-        return self._timed("sky", lambda: self._drop_sky(fused, left))
+        return self._timed("sky", lambda: self._drop_sky(fused, left, left_rgb))
 
     def _timed(self, step: str, work: Callable[[], T]) -> T:
         start = time.perf_counter()
@@ -192,11 +192,11 @@ class MultiResolutionMatcher:
             left, right = (cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) for img in (left, right))
         return refine_disparity(left, right, disparity, self.subpixel)
 
-    def _drop_sky(self, disparity: DisparityMap, left: Image) -> DisparityMap:
+    def _drop_sky(self, disparity: DisparityMap, left: Image, left_rgb: Image) -> DisparityMap:
         """NaN over the sky (``sky.py``), last, so no fill puts a value back."""
         if self.sky_window_px <= 0:
             return disparity
-        sky = sky_mask(left, self.sky_window_px, self.sky_max_gradient)
+        sky = sky_mask(left, self.sky_window_px, self.sky_max_gradient, left_rgb, self.sky_gap_colour, disparity)
         return np.where(sky, np.float32(np.nan), disparity).astype(np.float32, copy=False)
 
     def _fill_hidden(self, disparity: DisparityMap, left: Image) -> DisparityMap:

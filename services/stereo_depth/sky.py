@@ -10,6 +10,15 @@ gradient in either direction: the matcher's own texture test looks only across (
 matching sees), and a horizontal edge, such as a hedge's top against a pale sky or a walker's
 head, has no gradient across, so the sky would flood through it into whatever flat surface lies
 below.
+
+Sky also shows through gaps that do not reach the top row: under a gantry or a height barrier,
+between a bridge and the horizon. SGM carries the bar's disparity down into that flat strip,
+and the strip's points hang under the bar as a false obstacle (synthetic `hanging` seed 7: the
+strip under a barrier at 17 m became a 255-voxel cluster 1.6-2.7 m up, over the lane). With
+``gap_colour`` > 0, a flat region not joined to the top row is sky too when its mean colour is
+within ``gap_colour`` grey levels (every channel) of the open sky's on the same rows, and it
+reaches no lower than the open sky does: a pale wall or a truck's side stands on the ground,
+below the horizon the open sky stops at.
 """
 
 from __future__ import annotations
@@ -20,12 +29,123 @@ import numpy.typing as npt
 
 from services.stereo_depth.sgbm import Image
 
+#: flat regions smaller than this (pixels) are never taken for sky seen through a gap.
+MIN_GAP_PX = 25
 
-def sky_mask(image: Image, window: int, max_gradient: float) -> npt.NDArray[np.bool_]:
-    """Pixels joined to the top row through pixels whose mean |gradient| (window square) is under ``max_gradient``."""
+
+def sky_mask(
+    image: Image,
+    window: int,
+    max_gradient: float,
+    colour: Image | None = None,
+    gap_colour: float = 0.0,
+    disparity: npt.NDArray[np.float32] | None = None,
+) -> npt.NDArray[np.bool_]:
+    """Pixels joined to the top row through pixels whose mean |gradient| (window square) is under ``max_gradient``;
+    with ``colour`` (the RGB image) and ``gap_colour`` > 0, also flat regions of the open sky's colour (above)."""
     grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
     gradient = np.abs(cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3)) + np.abs(cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3))
     flat = (cv2.blur(gradient, (window, window)) < np.float32(max_gradient)).astype(np.uint8)
-    _, labels = cv2.connectedComponents(flat, connectivity=4)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(flat, connectivity=4)
     top = np.unique(labels[0][flat[0] > 0])
-    return np.isin(labels, top) if top.size else np.zeros(grey.shape, dtype=bool)
+    if not top.size:
+        return np.zeros(grey.shape, dtype=bool)
+    is_sky = np.zeros(count, dtype=bool)
+    is_sky[top] = True
+    sky = is_sky[labels]
+    if gap_colour > 0.0 and colour is not None and colour.ndim == 3:
+        gaps = _gaps(labels, stats, is_sky, sky, colour, gap_colour, disparity)
+        if gaps.any():
+            _add_grown(sky, labels, stats, gaps, colour, gap_colour, window // 2 + 1)
+    return sky
+
+
+#: a ring this wide (pixels) around a region is its border; its disparities' 10th and 90th
+#: percentiles within this ratio (plus half a pixel) are one surface's.
+RING_PX, ONE_DEPTH_RATIO = 3, 1.25
+
+
+def _one_depth_around(
+    labels: npt.NDArray[np.int32], c: int, box: npt.NDArray[np.int32], disparity: npt.NDArray[np.float32]
+) -> bool:
+    """Whether the finite disparities on the border of component ``c`` (box: x, y, w, h) are one surface's."""
+    x, y, w, h = (int(v) for v in box[0:4])
+    y0, x0 = max(y - RING_PX, 0), max(x - RING_PX, 0)
+    own = (labels[y0 : y + h + RING_PX, x0 : x + w + RING_PX] == c).view(np.uint8)
+    ring = cv2.dilate(own, np.ones((3, 3), np.uint8), iterations=RING_PX).view(bool) & ~own.view(bool)
+    values = disparity[y0 : y + h + RING_PX, x0 : x + w + RING_PX][ring]
+    values = values[np.isfinite(values)]
+    if values.size < 10:
+        return False
+    low, high = np.percentile(values, [10.0, 90.0])
+    return bool(high <= ONE_DEPTH_RATIO * low + 0.5)
+
+
+def _add_grown(
+    sky: npt.NDArray[np.bool_],
+    labels: npt.NDArray[np.int32],
+    stats: npt.NDArray[np.int32],
+    gaps: npt.NDArray[np.bool_],
+    colour: Image,
+    tolerance: float,
+    reach: int,
+) -> None:
+    """Add to ``sky`` the gaps and the pixels of their colour up to ``reach`` pixels around them.
+
+    Flatness is judged over a window, so the rows of sky next to a bar's edge are not flat and
+    stay out of the gap; they hold the bar's disparity too and hang under it as a thin sheet.
+    """
+    boxes = stats[gaps]
+    y0, x0 = max(int(boxes[:, cv2.CC_STAT_TOP].min()) - reach, 0), max(int(boxes[:, cv2.CC_STAT_LEFT].min()) - reach, 0)
+    y1 = int((boxes[:, cv2.CC_STAT_TOP] + boxes[:, cv2.CC_STAT_HEIGHT]).max()) + reach
+    x1 = int((boxes[:, cv2.CC_STAT_LEFT] + boxes[:, cv2.CC_STAT_WIDTH]).max()) + reach
+    inner = gaps[labels[y0:y1, x0:x1]]
+    near = cv2.dilate(inner.view(np.uint8), np.ones((3, 3), np.uint8), iterations=reach).view(bool)
+    patch = colour[y0:y1, x0:x1]
+    reference = np.array(cv2.mean(patch, mask=inner.view(np.uint8))[0:3], dtype=np.float32)
+    alike = np.all(np.abs(patch.astype(np.int16) - reference) <= tolerance, axis=2)
+    sky[y0:y1, x0:x1] |= inner | (near & alike)
+
+
+def _gaps(
+    labels: npt.NDArray[np.int32],
+    stats: npt.NDArray[np.int32],
+    is_sky: npt.NDArray[np.bool_],
+    sky: npt.NDArray[np.bool_],
+    colour: Image,
+    tolerance: float,
+    disparity: npt.NDArray[np.float32] | None = None,
+) -> npt.NDArray[np.bool_]:
+    """Which flat components not joined to the top row have the open sky's colour, within its rows.
+
+    With ``disparity``, one more test: the region's surroundings must disagree on its depth. A
+    flat region takes its disparity from its border; under a bar that border is the bar above and
+    the far horizon below, while a pale patch of a facade (KITTI: white walls under a white sky)
+    is enclosed by the facade itself and keeps its points.
+
+    Specks under ``MIN_GAP_PX`` are left alone: too small to carry a bar's disparity far.
+    """
+    count = len(stats)
+    out = np.zeros(count, dtype=bool)
+    sky_rows = np.flatnonzero(sky.any(axis=1))
+    if not sky_rows.size:
+        return out
+    top = stats[:, cv2.CC_STAT_TOP]
+    bottom = top + stats[:, cv2.CC_STAT_HEIGHT]  # one past the lowest row
+    candidates = ~is_sky & (stats[:, cv2.CC_STAT_AREA] >= MIN_GAP_PX) & (bottom <= sky_rows.max() + 1)
+    candidates[0] = False  # label 0 is every pixel that is not flat
+    if not candidates.any():
+        return out
+    sky_u8 = sky.view(np.uint8)
+    for c in np.flatnonzero(candidates).tolist():
+        x, y, w, h = (int(v) for v in stats[c, 0:4])
+        own = (labels[y : y + h, x : x + w] == c).view(np.uint8)
+        open_rows = sky_u8[y : y + h]
+        if not open_rows.any():
+            continue
+        mine = np.array(cv2.mean(colour[y : y + h, x : x + w], mask=own)[0:3])
+        theirs = np.array(cv2.mean(colour[y : y + h], mask=open_rows)[0:3])
+        out[c] = bool(np.all(np.abs(mine - theirs) <= tolerance)) and (
+            disparity is None or not _one_depth_around(labels, c, stats[c], disparity)
+        )
+    return out
