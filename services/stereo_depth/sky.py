@@ -17,8 +17,11 @@ and the strip's points hang under the bar as a false obstacle (synthetic `hangin
 strip under a barrier at 17 m became a 255-voxel cluster 1.6-2.7 m up, over the lane). With
 ``gap_colour`` > 0, a flat region not joined to the top row is sky too when its mean colour is
 within ``gap_colour`` grey levels (every channel) of the open sky's on the same rows, and it
-reaches no lower than the open sky does: a pale wall or a truck's side stands on the ground,
-below the horizon the open sky stops at.
+reaches no lower than the open sky does (a pale wall or a truck's side stands on the ground,
+below the horizon the open sky stops at), and when its border holds two depths (``_gaps``); it
+then takes the few pixels of its colour around it too (``_add_grown``). Held-out `hanging` seeds
+7-10: the overhang's span within +-0.25 m in 87-100 % of frames, against 67-98 % without
+(docs/results/voxel.md, "Session 27").
 """
 
 from __future__ import annotations
