@@ -18,7 +18,7 @@ import pytest
 from conftest import REPO, stereovox_cmd
 
 from common.config import VolumeConfig
-from common.evaluation.breakdown import breakdown
+from common.evaluation.breakdown import breakdown, format_breakdown
 from common.evaluation.evaluate import KEYS, evaluate_recording, matched_frames, stitched_poses
 from common.evaluation.inputs import ClusterBox, FrameClusters, read_inputs
 from common.evaluation.matching import DetectionView, TruthView, match, truth_in_vehicle
@@ -115,8 +115,9 @@ def write_run(
     extra: Callable[[int], list[Obstacle]] = lambda k: [],
     dontcare: np.ndarray | None = None,
     disparity: tuple[np.ndarray, np.ndarray] | None = None,
+    clusters_on: Callable[[int, GroundTruthObject], int] = lambda k, obj: 1,
 ) -> Path:
-    """A run recording: truth, estimated ego, clusters on the objects, obstacles and timings."""
+    """A run recording: truth, estimated ego, clusters on the objects (``clusters_on`` each), obstacles and timings."""
     with RecordingWriter(path) as w:
         w.describe(
             {"volume": {"x_min": 0.0, "x_max": 28.7, "y_half": 8.2, "z_min": 0.0, "z_max": 3.5}},
@@ -141,7 +142,7 @@ def write_run(
             clusters = []
             for obj in objs:
                 c = to_est_world[:3, :3] @ obj.center + to_est_world[:3, 3]
-                clusters.append(
+                clusters.extend(
                     Cluster(
                         id=obj.id,
                         voxels=np.zeros((4, 3), np.int32),
@@ -152,10 +153,11 @@ def write_run(
                         color_var_hsl=np.zeros(3, np.float32),
                         bbox_min=c - obj.size / 2 + 0.1,
                         bbox_max=c + obj.size / 2 - 0.1,
-                        centroid=c,
+                        centroid=c + np.array([0.5 * piece, 0.0, 0.0]),
                         density=0.5,
                         volume=10.0,
                     )
+                    for piece in range(clusters_on(k, obj))
                 )
                 det = detect(k, obj)
                 if det is not None:
@@ -406,6 +408,28 @@ def test_why_puts_every_scored_truth_frame_in_one_row(tmp_path: Path) -> None:
     found = breakdown(perfect_run, matched_frames(perfect_run))
     assert found.moving == Counter({("car", "found", "one"): 10})
     assert found.stationary == Counter({("car", "found", "one"): 10})
+
+
+def test_why_counts_every_counted_object_frame_as_one_cluster_pct_does(tmp_path: Path) -> None:
+    """Car 1 split in two in its last 5 frames, parked car 2 never clustered: rows by class and range."""
+
+    def split_1_drop_2(k: int, obj: GroundTruthObject) -> int:
+        return 0 if obj.id == 2 else 2 if k >= 15 else 1
+
+    path = write_run(tmp_path / "run.mcap", clusters_on=split_1_drop_2)
+    run = read_inputs(path)
+    rows = breakdown(run, matched_frames(run)).segmentation
+    # car 1 is 10 + 0.5 k m ahead: under 15 m up to frame 9; car 2, at (25 - k, 4), comes within
+    # 22 m at frame 4 and within 15 m at frame 11
+    assert rows == Counter({
+        ("car", "< 15 m", "one"): 10, ("car", "15-22 m", "one"): 5, ("car", "15-22 m", "split"): 5,
+        ("car", ">= 22 m", "missed"): 4, ("car", "15-22 m", "missed"): 7, ("car", "< 15 m", "missed"): 9,
+    })  # fmt: skip
+    one_pct = evaluate_recording(path)["segmentation"]["one_cluster_pct"]
+    assert one_pct == pytest.approx(100.0 * 15 / 40)
+    table = format_breakdown(breakdown(run, matched_frames(run)))
+    assert "counted objects by clusters on them (40 object-frames, one cluster 37.5 %)" in table
+    assert table.splitlines()[-1].split() == ["car", "40", "37.5", "5", "20", "52.6", "29.4", "0.0"]
 
 
 @pytest.mark.parametrize("damage", ["truncated", "not_mcap"])

@@ -7,6 +7,12 @@ mapper gave it (one cluster, several, none of its own but a box shared with a ne
 A moving walker with a "wrong label" and "one" cluster is lost to the tracker's speed estimate; one
 with "no track" and "merged" is lost to the mapper. Matching, warm-up and grace are the figures'
 own, so the moving rows add up to TP + FN and the stationary rows to the stationary objects scored.
+
+Segmentation is scored on more objects than the tracker (every counted object of every frame,
+standing or moving), so its own table follows: the counted object-frames per class as
+``one_cluster_pct`` counts them, and the one-cluster share by range. Which class, and how far
+away, is what says whether the loss is stereo's (thin poles and walkers beyond 22 m, where a pixel
+of disparity is metres of range) or the clustering's.
 """
 
 from __future__ import annotations
@@ -20,7 +26,7 @@ import numpy.typing as npt
 from common.evaluation.inputs import RunInputs
 from common.evaluation.matching import FrameMatch, TruthView
 from common.evaluation.metrics import WARMUP_FRAMES, grace_ids, scored_class
-from common.evaluation.segmentation import CLUSTER_MARGIN_M, box_overlaps, clusters_in_vehicle, inside_box
+from common.evaluation.segmentation import box_overlaps, clusters_in_vehicle, clusters_on
 
 #: what the tracker made of a scored truth-frame, for a moving and for a stationary object.
 FOUND, WRONG_LABEL, NO_TRACK = "found", "wrong label", "no track"
@@ -28,8 +34,14 @@ FOUND, WRONG_LABEL, NO_TRACK = "found", "wrong label", "no track"
 #: merged when no centroid lies on it but a box overlaps it (it is inside another object's cluster).
 SEGMENTS: tuple[str, ...] = ("one", "split", "merged", "none", "no clusters")
 
+#: how many clusters a counted object has, as segmentation.py counts them for ``one_cluster_pct``.
+COUNTS: tuple[str, ...] = ("one", "split", "missed")
+#: range bands (m, from the vehicle) of the segmentation table: the upper ends of all but the last.
+BANDS_M: tuple[float, ...] = (15.0, 22.0)
+BAND_NAMES: tuple[str, ...] = ("< 15 m", "15-22 m", ">= 22 m")
+
 F64 = npt.NDArray[np.float64]
-Row = tuple[str, str, str]  # (object class, outcome, segment)
+Row = tuple[str, str, str]  # (object class, outcome, segment); segmentation: (class, band, count)
 
 
 @dataclass
@@ -38,6 +50,7 @@ class Breakdown:
 
     moving: Counter[Row] = field(default_factory=Counter)
     stationary: Counter[Row] = field(default_factory=Counter)
+    segmentation: Counter[Row] = field(default_factory=Counter)  # counted object-frames, every frame
 
     def total(self, motion: str, outcome: str | None = None) -> int:
         rows: Counter[Row] = getattr(self, motion)
@@ -52,7 +65,7 @@ def segment_of(truth: TruthView, boxes: Boxes | None) -> str:
     if boxes is None:
         return "no clusters"
     centroids, lows, highs = boxes
-    n = int(inside_box(centroids, truth, CLUSTER_MARGIN_M).sum())
+    n = clusters_on(centroids, truth)
     if n == 1:
         return "one"
     if n > 1:
@@ -62,9 +75,19 @@ def segment_of(truth: TruthView, boxes: Boxes | None) -> str:
 
 
 def breakdown(run: RunInputs, frames: list[FrameMatch], warmup: int = WARMUP_FRAMES) -> Breakdown:
-    """Every moving and stationary truth-frame scored by the figures, in its row."""
+    """Every moving and stationary truth-frame scored by the figures, and every counted object-frame, in its row."""
     cls_of = {o.id: o.cls for gt in run.truth.values() for o in gt.objects}
     out = Breakdown()
+    for frame in frames:
+        clusters = run.clusters.get(frame.frame_id)
+        if clusters is None:
+            continue
+        centroids = clusters_in_vehicle(clusters)[0]
+        for truth in frame.truths:
+            if truth.counted:
+                n = clusters_on(centroids, truth)
+                band = BAND_NAMES[int(np.searchsorted(BANDS_M, np.linalg.norm(truth.center[:2]), side="right"))]
+                out.segmentation[(cls_of.get(truth.id, "?"), band, COUNTS[0 if n == 1 else 1 if n > 1 else 2])] += 1
     for frame, young in list(zip(frames, grace_ids(frames), strict=True))[warmup:]:
         det_of = frame.detection_of()
         clusters = run.clusters.get(frame.frame_id)
@@ -94,4 +117,35 @@ def format_breakdown(b: Breakdown) -> str:
         for cls, outcome in keys:
             counts = " ".join(f"{rows.get((cls, outcome, s), 0):>11}" for s in SEGMENTS)
             lines.append(f"  {cls:<12} {outcome:<12} {counts}")
+    if b.segmentation:
+        lines.extend(_segmentation_lines(b.segmentation))
     return "\n".join(lines)
+
+
+def _segmentation_lines(rows: Counter[Row]) -> list[str]:
+    """Per class: object-frames, one-cluster %, split, missed, and one-cluster % per range band."""
+
+    def pct(one: int, n: int) -> str:
+        return f"{100.0 * one / n:.1f}" if n else "-"
+
+    def count(cls: str | None, band: str | None, what: str | None) -> int:
+        return sum(
+            n for (c, b, w), n in rows.items()
+            if (cls is None or c == cls) and (band is None or b == band) and (what is None or w == what)
+        )  # fmt: skip
+
+    total = count(None, None, None)
+    lines = [
+        f"counted objects by clusters on them ({total} object-frames, one cluster "
+        f"{pct(count(None, None, 'one'), total)} %), one-cluster % by range",
+        f"  {'class':<12} {'frames':>7} {'one %':>7} {'split':>6} {'missed':>7} "
+        + " ".join(f"{b:>8}" for b in BAND_NAMES),
+    ]
+    for cls in sorted({c for c, _, _ in rows}, key=lambda c: -count(c, None, None)):
+        n = count(cls, None, None)
+        bands = " ".join(f"{pct(count(cls, b, 'one'), count(cls, b, None)):>8}" for b in BAND_NAMES)
+        lines.append(
+            f"  {cls:<12} {n:>7} {pct(count(cls, None, 'one'), n):>7} {count(cls, None, 'split'):>6} "
+            f"{count(cls, None, 'missed'):>7} {bands}"
+        )
+    return lines

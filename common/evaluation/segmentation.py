@@ -47,6 +47,11 @@ def inside_box(points: F64, truth: TruthView, margin: float) -> npt.NDArray[np.b
     return in_xy & in_z
 
 
+def clusters_on(centroids: F64, truth: TruthView) -> int:
+    """How many clusters belong to the object: their centroids inside its box grown by ``CLUSTER_MARGIN_M``."""
+    return int(inside_box(centroids, truth, CLUSTER_MARGIN_M).sum())
+
+
 def _corners_xy(truth: TruthView) -> F64:
     c, s = np.cos(truth.yaw), np.sin(truth.yaw)
     half = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * truth.size[:2] / 2
@@ -95,7 +100,7 @@ def segmentation_figures(
         centroids, lows, highs = clusters_in_vehicle(clusters)
         counted = [t for t in truths if t.counted]
         for truth in counted:
-            n = int(inside_box(centroids, truth, CLUSTER_MARGIN_M).sum())
+            n = clusters_on(centroids, truth)
             objects += 1
             one += n == 1
             split += n > 1
