@@ -77,21 +77,21 @@ def segment_of(truth: TruthView, boxes: Boxes | None) -> str:
 def breakdown(run: RunInputs, frames: list[FrameMatch], warmup: int = WARMUP_FRAMES) -> Breakdown:
     """Every moving and stationary truth-frame scored by the figures, and every counted object-frame, in its row."""
     cls_of = {o.id: o.cls for gt in run.truth.values() for o in gt.objects}
+    boxes_of = {f.frame_id: clusters_in_vehicle(run.clusters[f.frame_id]) for f in frames if f.frame_id in run.clusters}
     out = Breakdown()
     for frame in frames:
-        clusters = run.clusters.get(frame.frame_id)
-        if clusters is None:
+        if frame.frame_id not in boxes_of:
             continue
-        centroids = clusters_in_vehicle(clusters)[0]
+        centroids = boxes_of[frame.frame_id][0]
         for truth in frame.truths:
             if truth.counted:
                 n = clusters_on(centroids, truth)
                 band = BAND_NAMES[int(np.searchsorted(BANDS_M, np.linalg.norm(truth.center[:2]), side="right"))]
-                out.segmentation[(cls_of.get(truth.id, "?"), band, COUNTS[0 if n == 1 else 1 if n > 1 else 2])] += 1
+                count = COUNTS[0] if n == 1 else COUNTS[1] if n > 1 else COUNTS[2]
+                out.segmentation[(cls_of.get(truth.id, "?"), band, count)] += 1
     for frame, young in list(zip(frames, grace_ids(frames), strict=True))[warmup:]:
         det_of = frame.detection_of()
-        clusters = run.clusters.get(frame.frame_id)
-        boxes = None if clusters is None else clusters_in_vehicle(clusters)
+        boxes = boxes_of.get(frame.frame_id)
         for t, truth in enumerate(frame.truths):
             motion = scored_class(truth, young)
             if motion == "ignored":
