@@ -94,3 +94,28 @@ def test_metric_reproduces_the_sgbm_anchor_on_middlebury_and_kitti(tmp_path: Pat
                            max_frames=51)
     got = _sgbm_scores(raw, 128)
     assert got == pytest.approx({"d1_all_pct": 16.9, "d1_est_pct": 8.9, "density_pct": 78.0}, abs=0.6), got
+
+
+def test_edge_counts_find_points_between_two_surfaces_on_both_sides_of_a_step() -> None:
+    from common.evaluation.edges import dense, edge_counts, format_edges
+
+    # a row of background at 10 px with an object at 14 px on columns 20-29; the right camera
+    # cannot see columns 16-19 (the hidden band, empty in the truth)
+    truth = np.full((3, 40), 10.0, dtype=np.float32)
+    truth[:, 20:30] = 14.0
+    truth[:, 16:20] = N
+    est = truth.copy()
+    est[:, 14:20] = 12.0  # a ramp through the band and two background columns beyond it
+    est[:, 30] = 14.0  # fattened: on the object's disparity, not between the surfaces
+    est[:, 31] = 12.0  # between
+    counts = edge_counts(est, truth)
+    shares = counts.shares()
+    assert counts.hidden.tolist() == [3] * 8 and counts.seen.tolist() == [3] * 8
+    assert shares["hidden_side"] == [100.0] * 6 + [0.0, 0.0]
+    assert shares["seen_side"] == [0.0, 100.0] + [0.0] * 6
+    # the matcher's own truth has nothing between; a sparse (lidar) truth is not read
+    clean = edge_counts(np.where(np.isnan(truth), 10.0, truth), truth)
+    assert clean.hidden_between.sum() == 0 and clean.seen_between.sum() == 0
+    assert dense(truth) and not dense(np.where(np.arange(40) % 4 == 0, truth, N))
+    table = format_edges(counts)
+    assert "beside the hidden band" in table and "100.0" in table

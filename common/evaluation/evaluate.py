@@ -250,6 +250,9 @@ def run(args: argparse.Namespace) -> int:
         print(format_table(ev.result, ev.notes))
     if why is not None and args.why:
         from common.evaluation.breakdown import format_breakdown
+        from common.evaluation.edges import format_edges
 
-        print(format_breakdown(why), file=sys.stderr if args.json else sys.stdout)
+        out = sys.stderr if args.json else sys.stdout
+        print(format_breakdown(why), file=out)
+        print(format_edges(run_inputs.edges), file=out)
     return 0

@@ -16,6 +16,7 @@ import numpy.typing as npt
 
 from common.config import VolumeConfig
 from common.errors import RecordingError
+from common.evaluation.edges import EdgeCounts, dense, edge_counts
 from common.evaluation.stereo import d1_frame
 from common.messages import (
     Calibration,
@@ -79,6 +80,7 @@ class RunInputs:
     obstacles: dict[int, Obstacles] = field(default_factory=dict)
     clusters: dict[int, FrameClusters] = field(default_factory=dict)
     stereo: dict[int, dict[str, float | None]] = field(default_factory=dict)
+    edges: EdgeCounts = field(default_factory=EdgeCounts)  # beside depth steps, frames with dense truth
     trails: dict[int, list[Timing]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     decode_errors: int = 0
@@ -170,6 +172,8 @@ class _Reader:
             est, truth = self.pending_est.pop(fid), self.pending_truth.pop(fid)
             if est.shape == truth.shape:
                 self.run.stereo[fid] = d1_frame(est, truth)
+                if dense(truth):
+                    self.run.edges.add(edge_counts(est, truth))
             else:
                 note = f"frame {fid}: disparity {est.shape} and its truth {truth.shape} differ; not scored"
                 self.run.notes.append(note)
