@@ -94,7 +94,8 @@ class StereoConfig:
     ramp_reach_px: int = 4  # ... plateaus this many columns to either side (measured 2-5)
     ramp_width_px: int = 3  # ... each the mean of this many columns
     ramp_margin_px: float = 0.2  # ... and a pixel this near either plateau's disparity is that surface's own
-    ramp_flat_share: float = 0.15  # ... each plateau changing by at most this share of the step (a slope is kept)
+    ramp_flat_share: float = 0.15  # ... each plateau changing by at most this share of the step; 0: no test
+    ramp_snap_ratio: float = 0.0  # > 0: ramp pixels moved onto the plateau of nearer colour (this factor)
 
 
 @dataclass

@@ -61,7 +61,10 @@ def test_missing_disparities_never_make_a_step() -> None:
     assert np.isnan(out[0, 12:14]).all() and np.isfinite(out[0, :12]).all() and np.isfinite(out[0, 14:]).all()
 
 
-@pytest.mark.parametrize("setting", ["ramp_reach_px=0", "ramp_width_px=0", "ramp_margin_px=-0.1", "ramp_flat_share=-1"])
+@pytest.mark.parametrize(
+    "setting",
+    ["ramp_reach_px=0", "ramp_width_px=0", "ramp_margin_px=-0.1", "ramp_flat_share=-1", "ramp_snap_ratio=1.5"],
+)
 def test_bad_ramp_settings_are_refused(setting: str) -> None:
     with pytest.raises(ConfigError):
         StereoDepth.from_config(load_config(sets=["stereo.ramp_step_px=1.0", f"stereo.{setting}"]))
@@ -103,3 +106,46 @@ def test_on_a_rendered_street_the_dropped_pixels_are_mostly_the_matchers_misplac
     share_dropped = (dropped & wrong).sum() / (dropped & both).sum()
     assert share_dropped > 5 * wrong.sum() / both.sum()
     assert len(cloud.points) < len(plain_cloud.points)
+
+
+GREY, RED, PINK = (120, 120, 120), (200, 30, 30), (160, 75, 75)
+
+
+def _image(*runs: tuple[tuple[int, int, int], int]) -> np.ndarray:
+    """One image row (1 x N x 3 uint8) made of runs of (colour, columns)."""
+    return np.concatenate([np.tile(np.array(c, np.uint8), (n, 1)) for c, n in runs])[None, :, :]
+
+
+def test_snapping_moves_a_ramp_pixel_onto_the_surface_of_its_colour() -> None:
+    """A red pole at 12 px before a grey wall at 10 px; the three in-between columns are grey, red and
+    a colour halfway between: the grey one joins the wall, the red one the pole, the third stays."""
+    row = np.concatenate([_row((12.0, 12)), np.array([[11.5, 11.0, 10.5]], np.float32), _row((10.0, 12))], axis=1)
+    image = _image((RED, 12), (RED, 1), (PINK, 1), (GREY, 1), (GREY, 12))
+    snapped = RampFilter(flat_share=0.0, snap_ratio=0.5).apply(row, image)
+    np.testing.assert_array_equal(snapped[0, 12:15], [12.0, 11.0, 10.0])
+    np.testing.assert_array_equal(snapped[0, :12], row[0, :12])  # both surfaces untouched
+    np.testing.assert_array_equal(snapped[0, 15:], row[0, 15:])
+    assert np.isnan(RampFilter().apply(row)[0, 12:15]).all()  # without snapping they are left out
+    with pytest.raises(ConfigError, match="needs the image"):
+        RampFilter(snap_ratio=0.5).apply(row)
+
+
+def test_snapping_keeps_every_point_and_empties_the_space_between() -> None:
+    """Reprojected: with snapping the cloud has as many points as without, none between the surfaces."""
+    cfg = Config()
+    fx, baseline = 600.0, 0.4
+    disparity = np.tile(_row((24.0, 40), (22.0, 1), (20.0, 1), (18.0, 1), (16.0, 40)), (60, 1))
+    frame_calib = Calibration(
+        fx=fx, fy=fx, cx=41.5, cy=30.0, baseline=baseline, width=83, height=60, cam_to_vehicle=camera_to_vehicle(1.5)
+    )
+    image = np.tile(_image((RED, 42), (GREY, 41)), (60, 1, 1))
+    crop = VolumeCrop.from_config(cfg.volume, 10.0)
+    plain = Reprojector(crop, 0.5).points(disparity, image, frame_calib)[0]
+    snapped = Reprojector(crop, 0.5, ramps=RampFilter(flat_share=0.0, snap_ratio=0.5)).points(
+        disparity, image, frame_calib
+    )[0]
+    near, far = fx * baseline / 24.0, fx * baseline / 16.0
+    assert len(snapped) == len(plain)
+    assert not ((snapped[:, 0] > near + 0.1) & (snapped[:, 0] < far - 0.1)).any()
+    cloud_cfg = load_config(sets=["stereo.ramp_step_px=1.0", "stereo.ramp_snap_ratio=0.5", "stereo.ramp_flat_share=0"])
+    assert StereoDepth.from_config(cloud_cfg).reprojector.ramps == RampFilter(flat_share=0.0, snap_ratio=0.5)

@@ -46,7 +46,7 @@ class StereoDepth:
         ramps = None
         if stereo.ramp_step_px > 0.0:
             ramps = RampFilter(stereo.ramp_step_px, stereo.ramp_reach_px, stereo.ramp_width_px, stereo.ramp_margin_px,
-                               stereo.ramp_flat_share)
+                               stereo.ramp_flat_share, stereo.ramp_snap_ratio)
         self.reprojector = Reprojector(crop, stereo.min_points_depth_m, stereo.decimation, bias, ramps)
         self._matchers: dict[int, MultiResolutionMatcher] = {}
         self.last_degenerate = False

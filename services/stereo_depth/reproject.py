@@ -71,7 +71,7 @@ class Reprojector:
         pixels between two surfaces left out."""
         step = self.step
         if self.ramps is not None:
-            disparity = self.ramps.apply(disparity)
+            disparity = self.ramps.apply(disparity, image)
         disp = disparity[::step, ::step]
         depth = self._depth(disp, calib)
         rays = self._rays_for(calib, disp.shape)
