@@ -81,23 +81,23 @@ def edge_counts(estimate: F32, truth: F32) -> EdgeCounts:
     lo, hi = DISPARITY_RANGE
     # the last valid column at or before each column, and its value (the background left of a step)
     last = np.maximum.accumulate(np.where(valid, np.arange(cols)[None, :], -1), axis=1)
-    near = gt[:, 1:]  # column c + 1, the nearer side's first pixel, for c = 0 .. cols - 2
+    after = gt[:, 1:]  # column c + 1, for c = 0 .. cols - 2: a rising step's object, a falling one's background
     with np.errstate(invalid="ignore"):
-        in_range = (near >= lo) & (near <= hi)
+        in_range = (after >= lo) & (after <= hi)
         # rising step: background left of it (through the hidden band), object from column c + 1
         back_col = last[:, :-1]
         back = np.where(back_col >= 0, gt[r_idx, np.maximum(back_col, 0)], np.nan)
-        rising = in_range & (near - back > STEP_PX) & (np.arange(cols - 1)[None, :] - back_col <= MAX_HIDDEN)
+        rising = in_range & (after - back > STEP_PX) & (np.arange(cols - 1)[None, :] - back_col <= MAX_HIDDEN)
         # falling step: object ends at column c, background seen by both from c + 1
         obj = gt[:, :-1]
-        falling = (obj >= lo) & (obj <= hi) & (obj - near > STEP_PX)
+        falling = (obj >= lo) & (obj <= hi) & (obj - after > STEP_PX)
     for k in range(REACH):
         # hidden side: column c - k, judged against the background beyond the band and the object
         cs = np.arange(k, cols - 1)
         rs, cc = np.nonzero(rising[:, cs])
         cc = cs[cc]
         px = est[rs, cc - k]
-        fg, bg = near[rs, cc], back[rs, cc]
+        fg, bg = after[rs, cc], back[rs, cc]
         out.hidden[k] += len(rs)
         with np.errstate(invalid="ignore"):
             out.hidden_between[k] += int(((px > bg + MARGIN_PX) & (px < fg - MARGIN_PX)).sum())

@@ -68,7 +68,7 @@ class Reprojector:
         self, disparity: DisparityMap, image: npt.NDArray[np.uint8], calib: Calibration
     ) -> tuple[Points, Colors]:
         """Points (vehicle frame, float32) and RGB colours of every ``decimation``-th pixel in the volume; ramp
-        pixels between two surfaces left out."""
+        pixels between two surfaces left out or moved onto one (ramps.py)."""
         step = self.step
         if self.ramps is not None:
             disparity = self.ramps.apply(disparity, image)
