@@ -70,19 +70,23 @@ def test_bad_ramp_settings_are_refused(setting: str) -> None:
         StereoDepth.from_config(load_config(sets=["stereo.ramp_step_px=1.0", f"stereo.{setting}"]))
 
 
-def test_the_cloud_leaves_out_ramp_points_but_keeps_both_surfaces() -> None:
-    """Reprojected by hand: the ramp columns' points lie between the two surfaces and are gone."""
-    cfg = Config()
+def _step_cloud(ramps: RampFilter, image: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """A surface at 10 m before one at 15 m, with three ramp columns between them, reprojected by hand
+    without and with ``ramps``: both clouds' points and the two surfaces' ranges."""
     fx, baseline = 600.0, 0.4
     disparity = np.tile(_row((24.0, 40), (22.0, 1), (20.0, 1), (18.0, 1), (16.0, 40)), (60, 1))
     frame_calib = Calibration(
         fx=fx, fy=fx, cx=41.5, cy=30.0, baseline=baseline, width=83, height=60, cam_to_vehicle=camera_to_vehicle(1.5)
     )
-    image = np.zeros((60, 83, 3), np.uint8)
-    crop = VolumeCrop.from_config(cfg.volume, 10.0)
+    crop = VolumeCrop.from_config(Config().volume, 10.0)
     plain = Reprojector(crop, 0.5).points(disparity, image, frame_calib)[0]
-    ramps = Reprojector(crop, 0.5, ramps=RampFilter()).points(disparity, image, frame_calib)[0]
-    near, far = fx * baseline / 24.0, fx * baseline / 16.0  # 10 m and 15 m
+    filtered = Reprojector(crop, 0.5, ramps=ramps).points(disparity, image, frame_calib)[0]
+    return plain, filtered, fx * baseline / 24.0, fx * baseline / 16.0
+
+
+def test_the_cloud_leaves_out_ramp_points_but_keeps_both_surfaces() -> None:
+    """The ramp columns' points lie between the two surfaces and are gone."""
+    plain, ramps, near, far = _step_cloud(RampFilter(), np.zeros((60, 83, 3), np.uint8))
     between = (plain[:, 0] > near + 0.1) & (plain[:, 0] < far - 0.1)
     assert between.sum() == 3 * 60
     assert len(ramps) == len(plain) - 3 * 60
@@ -132,19 +136,8 @@ def test_snapping_moves_a_ramp_pixel_onto_the_surface_of_its_colour() -> None:
 
 def test_snapping_keeps_every_point_and_empties_the_space_between() -> None:
     """Reprojected: with snapping the cloud has as many points as without, none between the surfaces."""
-    cfg = Config()
-    fx, baseline = 600.0, 0.4
-    disparity = np.tile(_row((24.0, 40), (22.0, 1), (20.0, 1), (18.0, 1), (16.0, 40)), (60, 1))
-    frame_calib = Calibration(
-        fx=fx, fy=fx, cx=41.5, cy=30.0, baseline=baseline, width=83, height=60, cam_to_vehicle=camera_to_vehicle(1.5)
-    )
     image = np.tile(_image((RED, 42), (GREY, 41)), (60, 1, 1))
-    crop = VolumeCrop.from_config(cfg.volume, 10.0)
-    plain = Reprojector(crop, 0.5).points(disparity, image, frame_calib)[0]
-    snapped = Reprojector(crop, 0.5, ramps=RampFilter(flat_share=0.0, snap_ratio=0.5)).points(
-        disparity, image, frame_calib
-    )[0]
-    near, far = fx * baseline / 24.0, fx * baseline / 16.0
+    plain, snapped, near, far = _step_cloud(RampFilter(flat_share=0.0, snap_ratio=0.5), image)
     assert len(snapped) == len(plain)
     assert not ((snapped[:, 0] > near + 0.1) & (snapped[:, 0] < far - 0.1)).any()
     cloud_cfg = load_config(sets=["stereo.ramp_step_px=1.0", "stereo.ramp_snap_ratio=0.5", "stereo.ramp_flat_share=0"])
