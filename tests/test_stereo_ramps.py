@@ -142,3 +142,9 @@ def test_snapping_keeps_every_point_and_empties_the_space_between() -> None:
     assert not ((snapped[:, 0] > near + 0.1) & (snapped[:, 0] < far - 0.1)).any()
     cloud_cfg = load_config(sets=["stereo.ramp_step_px=1.0", "stereo.ramp_snap_ratio=0.5", "stereo.ramp_flat_share=0"])
     assert StereoDepth.from_config(cloud_cfg).reprojector.ramps == RampFilter(flat_share=0.0, snap_ratio=0.5)
+
+
+def test_snapping_a_frame_narrower_than_the_plateaus_changes_nothing() -> None:
+    tiny = np.full((4, 1), 11.0, np.float32)  # one column: no run of three to average a colour over
+    out = RampFilter(snap_ratio=0.5).apply(tiny, np.zeros((4, 1, 3), np.uint8))
+    np.testing.assert_array_equal(out, tiny)

@@ -13,10 +13,10 @@ by column away from each step, on the two sides, which differ:
   pixels take the object's disparity: the object grows sideways, a few centimetres) or ramps
   across it (points between the two: the smear).
 
-Only *between* counts: a pixel more than ``margin`` px nearer than its background and more than
-``margin`` px farther than the object. Steps are taken in the truth, where a row's disparity rises
-by more than ``step`` px from one column (or from the last one before the hidden band) to the
-next, with the nearer side within ``disparity_range`` (the obstacles' depths).
+Only *between* counts: a pixel more than ``MARGIN_PX`` nearer than its background and more than
+``MARGIN_PX`` farther than the object. Steps are taken in the truth, where a row's disparity
+rises by more than ``STEP_PX`` from one column (or from the last one before the hidden band) to
+the next, with the nearer side within ``DISPARITY_RANGE`` (the obstacles' depths).
 """
 
 from __future__ import annotations

@@ -111,6 +111,8 @@ class RampFilter:
         if self.snap_ratio <= 0.0:
             out[ramp] = np.nan
             return out
+        if not ramp.any():  # nothing to move; an image narrower than the plateaus has no colour runs either
+            return out
         if image is None or image.shape[:2] != out.shape:
             raise ConfigError("stereo.ramp_snap_ratio needs the image the disparity belongs to")
         to_left, to_right = self._nearer_colour(ramp, np.asarray(image))
