@@ -485,6 +485,54 @@ def test_anchor_stays_on_the_faces_in_view_while_the_far_side_grows() -> None:
     assert abs(short.centroid[0] - long.centroid[0]) > 1.5
 
 
+def test_the_faces_are_the_percentiles_of_each_clusters_own_voxels() -> None:
+    # the compiled pass against the definition, cluster by cluster, under a turned and moved
+    # vehicle: the near and far faces (5 / 95 % of the voxels in vehicle x), the side faces (in
+    # y), and for a narrow cluster, narrow by the 5-95 % of its points across the line of sight,
+    # the median range of its points; a cluster without counts weighs its voxels alike
+    rng = np.random.default_rng(3)
+    yaw = 0.4
+    pose = np.eye(4)
+    pose[0:2, 0:2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
+    pose[0:3, 3] = [5.0, -2.0, 0.3]
+    clusters = []
+    for k in range(16):
+        spread = rng.integers(1, 4 if k % 2 else 30, 3)  # thin and wide ones
+        voxels = rng.integers(-spread, spread, (int(rng.integers(1, 150)), 3)) + rng.integers(-60, 60, 3)
+        c = of_voxels(np.unique(voxels, axis=0).astype(np.int32), cid=k)
+        if k % 4 != 3:
+            c = dataclasses.replace(c, voxel_points=rng.integers(0, 30, c.voxel_count).astype(np.int32))
+        clusters.append(c)
+    points, side, far, narrow, _ = anchors(clusters, np.array([c.centroid for c in clusters]), pose, EDGE)
+
+    def by_count(values: np.ndarray, share: float) -> float:
+        return float(np.sort(values)[max(int(np.ceil(share * len(values))) - 1, 0)])
+
+    def by_points(values: np.ndarray, w: np.ndarray, share: float) -> float:
+        order = np.argsort(values, kind="stable")
+        cum = np.cumsum(w[order])
+        return float(values[order][min(int(np.searchsorted(cum, share * cum[-1])), len(values) - 1)])
+
+    rotation, origin = pose[0:3, 0:3], pose[0:3, 3]
+    assert 3 <= narrow.sum() <= len(clusters) - 3, narrow  # both kinds are tested
+    for k, c in enumerate(clusters):
+        local = ((c.voxels + 0.5) * EDGE - origin) @ rotation
+        w = c.voxel_points + 1e-3 if len(c.voxel_points) else np.ones(c.voxel_count)
+        ray = ((c.centroid - origin) @ rotation)[0:2]
+        ray /= np.linalg.norm(ray)
+        across = ray[0] * local[:, 1] - ray[1] * local[:, 0]
+        near_x, far_x = by_count(local[:, 0], 0.05), by_count(local[:, 0], 0.95)
+        y_lo, y_hi = by_count(local[:, 1], 0.05), by_count(local[:, 1], 0.95)
+        thin = by_points(across, w, 0.95) - by_points(across, w, 0.05) < anchor_module.NARROW_M
+        long_along = y_hi - y_lo < anchor_module.NARROW_M and far_x - near_x >= anchor_module.ALONG_ROAD_M
+        assert narrow[k] == (len(c.voxel_points) > 0 and (thin or long_along))
+        x = by_points(local[:, 0], w, 0.5) if narrow[k] else near_x
+        z = float((c.centroid - origin) @ rotation[:, 2])
+        seen = (points[k] - origin) @ rotation  # the three sides in the vehicle frame
+        assert seen == pytest.approx(np.array([[x, y_lo, z], [x, 0.5 * (y_lo + y_hi), z], [x, y_hi, z]]), abs=1e-9)
+        assert far[k] == pytest.approx((far_x - x) * rotation[:, 0], abs=1e-9)
+        assert side[k] == (2 if y_hi < 0 else 0 if y_lo > 0 else 1)
+
 def smeared(
     lo: tuple[float, float, float],
     hi: tuple[float, float, float],

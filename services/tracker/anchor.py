@@ -39,6 +39,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -58,7 +59,7 @@ ALONG_ROAD_M: float = 6.0
 
 
 def _stacked(clusters: list[Cluster]) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-    """All clusters' voxels in a row (float), their counts, this frame's points per voxel, and which are counted.
+    """All clusters' voxels in a row, their counts, this frame's points per voxel, and which are counted.
 
     A cluster from a recording made before the mapper counted points weighs its voxels alike. One
     pass over the clusters: three list comprehensions cost 60 µs a frame with 50 clusters.
@@ -71,10 +72,128 @@ def _stacked(clusters: list[Cluster]) -> tuple[NDArray, NDArray, NDArray, NDArra
     counted = np.fromiter((len(w) for w in points), dtype=np.int64, count=len(points)) == counts
     if not counted.all():
         points = [w if ok else np.ones(n) for w, ok, n in zip(points, counted, counts.tolist(), strict=True)]
-    stacked = np.concatenate(voxels).astype(np.float64) if voxels else np.zeros((0, 3))
+    stacked = np.concatenate(voxels).astype(np.int64) if voxels else np.zeros((0, 3), np.int64)
     weights = np.concatenate(points).astype(np.float64) if points else np.zeros(0)
     # + 1e-3: a voxel kept without points this frame counts a little
     return stacked, counts, np.where(np.repeat(counted, counts), weights + 1e-3, weights), counted
+
+
+@numba.njit(cache=True)
+def _pick(
+    values: NDArray,
+    weights: NDArray,
+    start: int,
+    running: float,
+    by_voxels: NDArray,
+    by_points: NDArray,
+    out: NDArray,
+) -> float:
+    """One cluster's percentiles of ``values`` into ``out``, by voxels then by points; the points summed so far.
+
+    By voxels, the first value (ascending) whose running count reaches the share; by points, the
+    first whose running points do. ``running`` carries the points of the clusters before this one,
+    so the sums are those of one cumulative sum over the frame, as in the all-numpy form this
+    replaced (the same figures on every replay, docs/results/tracking.md, "Session 30").
+    """
+    m = values.shape[0]
+    order = np.argsort(values)
+    for j, share in enumerate(by_voxels):
+        k = int(np.ceil(start + share * m)) - 1 - start
+        out[j] = values[order[min(max(k, 0), m - 1)]]
+    if by_points.shape[0] > 0:
+        before = running
+        cum = np.empty(m)
+        for i in range(m):
+            running += weights[order[i]]
+            cum[i] = running
+        total = running - before
+        for j, share in enumerate(by_points):
+            k = np.searchsorted(cum, before + share * total)
+            out[by_voxels.shape[0] + j] = values[order[min(max(k, 0), m - 1)]]
+    return running
+
+
+@numba.njit(cache=True)
+def _place(
+    voxels: NDArray,
+    counts: NDArray,
+    weights: NDArray,
+    counted: NDArray,
+    centroids: NDArray,
+    pose: NDArray,
+    edge: float,
+    q: float,
+    narrow_m: float,
+    along_road_m: float,
+    view: NDArray,
+    view_margin: float,
+) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
+    """``anchors`` for clusters with voxels under a finite pose, one cluster at a time.
+
+    Each cluster's own voxels are sorted on their own: in numpy, sorting all the frame's voxels
+    by (cluster, value) three times, with the gathers and the per-cluster arithmetic around it,
+    took a third of the tracker's time with 50 clusters.
+    """
+    n = counts.shape[0]
+    out = np.empty((n, 3, 3))
+    side = np.ones(n, dtype=np.int8)
+    far = np.zeros((n, 3))
+    narrow = np.zeros(n, dtype=np.bool_)
+    cut = np.zeros(n, dtype=np.bool_)
+    faces, median, tails, none = np.array([q, 1.0 - q]), np.array([0.5]), np.array([0.05, 0.95]), np.zeros(0)
+    xs, ys, spread = np.empty(3), np.empty(2), np.empty(2)
+    r, o = pose[0:3, 0:3], pose[0:3, 3]
+    run_x, run_across = 0.0, 0.0
+    start = 0
+    for c in range(n):
+        m = counts[c]
+        for s in range(3):
+            out[c, s] = centroids[c]
+        if m == 0:
+            continue
+        rel = centroids[c] - o
+        # across the line of sight, not sideways: a car seen obliquely is 1.8 m wide in y but shows
+        # its side, and its points' median range slides back along it as it nears (oncoming cars
+        # were read at 65-75 % of their speed); a walker smeared along an oblique ray is wide in y
+        ray_x = rel[0] * r[0, 0] + rel[1] * r[1, 0] + rel[2] * r[2, 0]
+        ray_y = rel[0] * r[0, 1] + rel[1] * r[1, 1] + rel[2] * r[2, 1]
+        norm = max(np.sqrt(ray_x * ray_x + ray_y * ray_y), 1e-9)
+        ray_x, ray_y = ray_x / norm, ray_y / norm
+        x, y, across = np.empty(m), np.empty(m), np.empty(m)
+        for i in range(m):
+            w0 = (voxels[start + i, 0] + 0.5) * edge - o[0]
+            w1 = (voxels[start + i, 1] + 0.5) * edge - o[1]
+            w2 = (voxels[start + i, 2] + 0.5) * edge - o[2]
+            x[i] = w0 * r[0, 0] + w1 * r[1, 0] + w2 * r[2, 0]
+            y[i] = w0 * r[0, 1] + w1 * r[1, 1] + w2 * r[2, 1]
+            across[i] = ray_x * y[i] - ray_y * x[i]
+        w = weights[start : start + m]
+        run_x = _pick(x, w, start, run_x, faces, median, xs)
+        _pick(y, w, start, 0.0, faces, none, ys)
+        run_across = _pick(across, w, start, run_across, none, tails, spread)
+        start += m
+        near_x, far_x, range_x, y_lo, y_hi = xs[0], xs[1], xs[2], ys[0], ys[1]
+        along_road = (y_hi - y_lo < narrow_m) and (far_x - near_x >= along_road_m)
+        narrow[c] = counted[c] and ((spread[1] - spread[0] < narrow_m) or along_road)
+        front = range_x if narrow[c] else near_x
+        z = rel[0] * r[0, 2] + rel[1] * r[1, 2] + rel[2] * r[2, 2]
+        for s, side_y in enumerate((y_lo, 0.5 * (y_lo + y_hi), y_hi)):
+            for a in range(3):  # the side's point in the vehicle frame, into the world
+                out[c, s, a] = r[a, 0] * front + r[a, 1] * side_y + r[a, 2] * z + o[a]
+        side[c] = 2 if y_hi < 0.0 else (0 if y_lo > 0.0 else 1)
+        for a in range(3):
+            far[c, a] = (far_x - front) * r[a, 0]
+        if view_margin > 0.0 and view[2] > view[3]:
+            # how far inside the image's side edges (m, sideways) the faces' near corners lie; a
+            # cluster reaching them has its near end where the edge cuts it, which slides with the vehicle
+            dx = near_x - view[0]
+            inside = min(view[2] * dx - (y_hi - view[1]), (y_lo - view[1]) - view[3] * dx)
+            cut[c] = not narrow[c] and inside <= view_margin
+    return out, side, far, narrow, cut
+
+
+#: what ``_place`` is given without the mapper's image edges: slopes that fail its test.
+NO_VIEW = np.zeros(4)
 
 
 def anchors(
@@ -94,74 +213,31 @@ def anchors(
     centroid for every side. The far-end shift moves that point to the far end along the
     vehicle's x (the high percentile), the other end of the object: a rigid object's two ends move
     together, a box growing or uncovered at one end moves only that end (motion_window.py).
-    A percentile is the first voxel whose running count (or running points) reaches its share,
-    taken for every cluster at once from one sort of all voxels by (cluster, value): per-cluster
-    ``np.quantile`` calls cost 25 ms for 50 clusters.
+    A percentile is the first voxel whose running count (or running points) reaches its share.
     """
     n = len(clusters)
-    out = np.repeat(np.asarray(centroids, dtype=np.float64)[:, None, :], 3, axis=1)
-    side = np.ones(n, dtype=np.int8)
-    far = np.zeros((n, 3))
-    narrow = np.zeros(n, dtype=bool)
-    cut = np.zeros(n, dtype=bool)
+    centroids = np.ascontiguousarray(centroids, dtype=np.float64).reshape(n, 3)
     if n == 0 or not np.isfinite(pose).all():
-        return out, side, far, narrow, cut
+        return (
+            np.repeat(centroids[:, None, :], 3, axis=1),
+            np.ones(n, dtype=np.int8),
+            np.zeros((n, 3)),
+            np.zeros(n, dtype=bool),
+            np.zeros(n, dtype=bool),
+        )
     voxels, counts, weights, counted = _stacked(clusters)
-    if len(voxels) == 0:
-        return out, side, far, narrow, cut
-    rotation, origin = pose[0:3, 0:3], pose[0:3, 3]
-    # vehicle x, y of every voxel; np.dot with the scale folded in: ``@`` on (n, 3) x (3, 2) is 4x slower here
-    axes = np.ascontiguousarray(rotation[:, 0:2])
-    local = np.dot(voxels, edge * axes) + (0.5 * edge - origin) @ axes
-    label = np.repeat(np.arange(n), counts)
-    has = counts > 0
-    ends = np.cumsum(counts)
-    starts = np.minimum(ends - counts, len(voxels) - 1)
-    last = np.maximum(ends - 1, starts)
-
-    def ranked(values: NDArray, by_voxels: tuple[float, ...], by_points: tuple[float, ...]) -> list[NDArray]:
-        """Per cluster, the first value (ascending) whose running count, then running points, reach each share.
-
-        One sort serves both: the faces count voxels, a narrow cluster's range and width its points.
-        The running count is the position itself, so its share is found without a search.
-        """
-        low = values.min()
-        order = np.argsort(label * (float(values.max() - low) + 1.0) + (values - low), kind="stable")
-        ordered = values[order]
-        at = [np.ceil(starts + share * counts).astype(np.int64) - 1 for share in by_voxels]
-        out = [ordered[np.clip(i, starts, last)] for i in at]
-        if by_points:
-            cum = np.cumsum(weights[order])
-            before = np.where(starts > 0, cum[np.maximum(starts - 1, 0)], 0.0)
-            total = cum[last] - before
-            out += [ordered[np.clip(np.searchsorted(cum, before + share * total), starts, last)] for share in by_points]
-        return out
-
-    q = FACE_PERCENTILE / 100.0
-    near_x, far_x, range_x = ranked(local[:, 0], (q, 1.0 - q), (0.5,))
-    y_lo, y_hi = ranked(local[:, 1], (q, 1.0 - q), ())
-    # across the line of sight, not sideways: a car seen obliquely is 1.8 m wide in y but shows its
-    # side, and its points' median range slides back along it as it nears (oncoming cars were
-    # read at 65-75 % of their speed); a walker smeared along an oblique ray is wide in y
-    ray = (out[:, 0, 0:3] - origin) @ axes
-    ray /= np.maximum(np.linalg.norm(ray, axis=1), 1e-9)[:, None]
-    across_lo, across_hi = ranked(ray[label, 0] * local[:, 1] - ray[label, 1] * local[:, 0], (), (0.05, 0.95))
-    along_road = (y_hi - y_lo < NARROW_M) & (far_x - near_x >= ALONG_ROAD_M)
-    narrow[:] = counted & ((across_hi - across_lo < NARROW_M) | along_road) & has
-    x = np.where(narrow, range_x, near_x)
-    z = (out[:, 0] - origin) @ rotation[:, 2]
-    # the three sides' points in the vehicle frame (n, 3 sides, 3), then all into the world at once
-    points = np.empty((n, 3, 3))
-    points[:, :, 0] = x[:, None]
-    points[:, :, 1] = np.column_stack([y_lo, 0.5 * (y_lo + y_hi), y_hi])
-    points[:, :, 2] = z[:, None]
-    out[has] = (points @ rotation.T + origin)[has]
-    side[has] = np.where(y_hi < 0.0, 2, np.where(y_lo > 0.0, 0, 1))[has]
-    far[has] = ((far_x - x)[:, None] * rotation[:, 0][None, :])[has]
-    if view is not None and view_margin > 0.0 and view[2] > view[3]:
-        # how far inside the image's side edges (m, sideways) the faces' near corners lie; a cluster
-        # reaching them has its near end where the edge cuts it, which slides with the vehicle
-        dx = near_x - view[0]
-        inside = np.minimum(view[2] * dx - (y_hi - view[1]), (y_lo - view[1]) - view[3] * dx)
-        cut = has & ~narrow & (inside <= view_margin)
-    return out, side, far, narrow, cut
+    seen = NO_VIEW if view is None else np.asarray(view, dtype=np.float64)
+    return _place(
+        voxels,
+        counts,
+        weights,
+        counted,
+        centroids,
+        np.ascontiguousarray(pose, dtype=np.float64),
+        float(edge),
+        FACE_PERCENTILE / 100.0,
+        NARROW_M,
+        ALONG_ROAD_M,
+        seen,
+        float(view_margin),
+    )

@@ -3,11 +3,14 @@
 State per track: ``[x, y, z, vx, vy, vz]`` in the world frame, constant velocity, the centroid
 position measured. The maths is filterpy's ``KalmanFilter`` (same predict, same Joseph-form
 update), written over a leading track axis because a per-track filterpy call costs ~40 µs and a
-frame may hold dozens of tracks; ``tests/test_tracker.py`` checks the two agree.
+frame may hold dozens of tracks; ``tests/test_tracker.py`` checks the two agree. The loops over
+tracks are compiled: numpy's batched products of 6 x 6 matrices cost more in dispatch than in
+arithmetic, a fifth of the tracker's time with 50 tracks (docs/results/tracking.md, "Session 30").
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -48,18 +51,24 @@ def initial_covariance(position_cov: F64, velocity_var: F64) -> F64:
     return out
 
 
+def _per_track(m: F64, n: int, shape: tuple[int, int]) -> F64:
+    """``m`` as one contiguous matrix per track: a shared (a, b) matrix repeated, an (n, a, b) stack kept."""
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(m, dtype=np.float64), (n, *shape)))
+
+
 def predict(x: F64, p: F64, f: F64, q: F64) -> tuple[F64, F64]:
-    """Predict ``n`` states ``x`` (n, 6) and covariances ``p`` (n, 6, 6) through ``f`` with noise ``q``."""
-    x_new = x @ f.T
-    p_new = f @ p @ f.T + q
-    return x_new, p_new
+    """Predict ``n`` states ``x`` (n, 6) and covariances ``p`` (n, 6, 6) through ``f`` with noise ``q``
+    ((6, 6), or (n, 6, 6) per track)."""
+    n = x.shape[0]
+    return _predict(np.ascontiguousarray(x), np.ascontiguousarray(p), np.ascontiguousarray(f), _per_track(q, n, (6, 6)))
 
 
 def normalised_innovation(x: F64, p: F64, z: F64, r: F64) -> F64:
     """Squared innovation over its predicted covariance, per measured dimension (n,): 1 when consistent."""
-    y = z - x[:, 0:3]
-    s = p[:, 0:3, 0:3] + r
-    return np.einsum("ni,ni->n", y, np.linalg.solve(s, y[:, :, None])[:, :, 0]) / 3.0
+    n = x.shape[0]
+    return _innovation(
+        np.ascontiguousarray(x), np.ascontiguousarray(p), np.ascontiguousarray(z), _per_track(r, n, (3, 3))
+    )
 
 
 def update(x: F64, p: F64, z: F64, r: F64) -> tuple[F64, F64]:
@@ -68,11 +77,112 @@ def update(x: F64, p: F64, z: F64, r: F64) -> tuple[F64, F64]:
     Joseph form, as filterpy: it keeps ``p`` symmetric positive definite in float64 however
     small the measurement noise.
     """
-    y = z - x[:, 0:3]
-    pht = p[:, :, 0:3]  # P H^T
-    s = pht[:, 0:3, :] + r  # H P H^T + R
-    k = pht @ np.linalg.inv(s)  # (n, 6, 3)
-    x_new = x + np.einsum("nij,nj->ni", k, y)
-    i_kh = np.eye(6) - k @ H
-    p_new = i_kh @ p @ np.swapaxes(i_kh, 1, 2) + k @ r @ np.swapaxes(k, 1, 2)
+    n = x.shape[0]
+    return _update(np.ascontiguousarray(x), np.ascontiguousarray(p), np.ascontiguousarray(z), _per_track(r, n, (3, 3)))
+
+
+@numba.njit(cache=True)
+def _inverse3(a: F64) -> F64:
+    """The inverse of a 3 x 3 matrix by its cofactors (a covariance here, never singular)."""
+    out = np.empty((3, 3))
+    out[0, 0] = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
+    out[0, 1] = a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]
+    out[0, 2] = a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]
+    out[1, 0] = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
+    out[1, 1] = a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]
+    out[1, 2] = a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]
+    out[2, 0] = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
+    out[2, 1] = a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1]
+    out[2, 2] = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+    det = a[0, 0] * out[0, 0] + a[0, 1] * out[1, 0] + a[0, 2] * out[2, 0]
+    return out / det
+
+
+@numba.njit(cache=True)
+def _predict(x: F64, p: F64, f: F64, q: F64) -> tuple[F64, F64]:
+    n = x.shape[0]
+    x_new, p_new = np.empty_like(x), np.empty_like(p)
+    fp = np.empty((6, 6))
+    for t in range(n):
+        for i in range(6):
+            acc = 0.0
+            for j in range(6):
+                acc += f[i, j] * x[t, j]
+            x_new[t, i] = acc
+        for i in range(6):
+            for j in range(6):
+                acc = 0.0
+                for k in range(6):
+                    acc += f[i, k] * p[t, k, j]
+                fp[i, j] = acc
+        for i in range(6):
+            for j in range(6):
+                acc = 0.0
+                for k in range(6):
+                    acc += fp[i, k] * f[j, k]
+                p_new[t, i, j] = acc + q[t, i, j]
+    return x_new, p_new
+
+
+@numba.njit(cache=True)
+def _innovation(x: F64, p: F64, z: F64, r: F64) -> F64:
+    n = x.shape[0]
+    out = np.empty(n)
+    y = np.empty(3)
+    for t in range(n):
+        s_inv = _inverse3(p[t, 0:3, 0:3] + r[t])
+        for i in range(3):
+            y[i] = z[t, i] - x[t, i]
+        acc = 0.0
+        for i in range(3):
+            for j in range(3):
+                acc += y[i] * s_inv[i, j] * y[j]
+        out[t] = acc / 3.0
+    return out
+
+
+@numba.njit(cache=True)
+def _update(x: F64, p: F64, z: F64, r: F64) -> tuple[F64, F64]:
+    n = x.shape[0]
+    x_new, p_new = np.empty_like(x), np.empty_like(p)
+    k = np.empty((6, 3))
+    i_kh = np.empty((6, 6))
+    a = np.empty((6, 6))
+    kr = np.empty((6, 3))
+    for t in range(n):
+        s_inv = _inverse3(p[t, 0:3, 0:3] + r[t])
+        for i in range(6):  # K = P H^T S^-1
+            for j in range(3):
+                acc = 0.0
+                for m in range(3):
+                    acc += p[t, i, m] * s_inv[m, j]
+                k[i, j] = acc
+        for i in range(6):  # x + K (z - H x)
+            acc = x[t, i]
+            for j in range(3):
+                acc += k[i, j] * (z[t, j] - x[t, j])
+            x_new[t, i] = acc
+        for i in range(6):  # I - K H
+            for j in range(6):
+                i_kh[i, j] = (1.0 if i == j else 0.0) - (k[i, j] if j < 3 else 0.0)
+        for i in range(6):  # (I - K H) P
+            for j in range(6):
+                acc = 0.0
+                for m in range(6):
+                    acc += i_kh[i, m] * p[t, m, j]
+                a[i, j] = acc
+        for i in range(6):  # K R
+            for j in range(3):
+                acc = 0.0
+                for m in range(3):
+                    acc += k[i, m] * r[t, m, j]
+                kr[i, j] = acc
+        for i in range(6):  # (I - K H) P (I - K H)^T + K R K^T
+            for j in range(6):
+                acc = 0.0
+                for m in range(6):
+                    acc += a[i, m] * i_kh[j, m]
+                for m in range(3):
+                    acc += kr[i, m] * k[j, m]
+                p_new[t, i, j] = acc
     return x_new, p_new

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -71,34 +72,67 @@ def speed_bounds(
     to line up do not claim a precise speed. Along a direction only the motion and the scatter
     along it count: a bound on the speed all the same. The projection of the fitted line is the
     line fitted to the projected faces, and so are its residuals, so the second bound costs a few
-    products instead of a second fit.
+    products instead of a second fit. Compiled, track by track: the same fit over numpy's
+    batched arrays cost a tenth of the tracker's time with 50 tracks.
     """
-    n, size = count.shape[0], points.shape[1]
-    whole, along = np.full(n, -np.inf), np.full(n, -np.inf)
-    valid = np.arange(size)[None, :] >= (size - count)[:, None]  # the newest ``count`` entries
-    ok = count >= MIN_POINTS
-    if not ok.any():
-        return whole, along
-    w = valid[ok].astype(np.float64)
-    m = w.sum(axis=1)
-    t = times[ok]
-    p = points[ok]
-    t_mean = (w * t).sum(axis=1) / m
-    dt = (t - t_mean[:, None]) * w
-    sxx = np.maximum((dt**2).sum(axis=1), 1e-12)
-    # einsum: a sum over the middle axis of (k, size, axes) costs three times as much
-    p_mean = np.einsum("ks,ksi->ki", w, p) / m[:, None]
-    dp = (p - p_mean[:, None, :]) * w[:, :, None]
-    slope = np.einsum("ks,ksi->ki", dt, dp) / sxx[:, None]  # (k, axes)
-    residual = dp - dt[:, :, None] * slope[:, None, :]  # zero at unused entries, as dp and dt are
-    dof = np.maximum(m - 2.0, 0.0)
+    n = count.shape[0]
+    along = direction is not None
+    d = np.ascontiguousarray(direction, dtype=np.float64) if along else np.zeros((n, 2))
+    return _bounds(
+        np.ascontiguousarray(points, dtype=np.float64),
+        np.ascontiguousarray(times, dtype=np.float64),
+        np.ascontiguousarray(count, dtype=np.int64),
+        float(floor_std),
+        float(k),
+        d,
+        along,
+    )
 
-    def bound(speed: NDArray, rss: NDArray, axes: int) -> NDArray:
-        scatter = np.maximum(rss / np.maximum(axes * dof, 1.0), floor_std**2)  # per axis
-        return speed - k * np.sqrt(scatter / sxx)
 
-    whole[ok] = bound(np.linalg.norm(slope, axis=1), np.einsum("ksi,ksi->k", residual, residual), points.shape[2])
-    if direction is not None:
-        d = direction[ok]
-        along[ok] = bound(np.abs((slope * d).sum(axis=1)), (np.einsum("nsi,ni->ns", residual, d) ** 2).sum(axis=1), 1)
-    return whole, along
+@numba.njit(cache=True)
+def _bounds(
+    points: NDArray, times: NDArray, count: NDArray, floor_std: float, k: float, direction: NDArray, along: bool
+) -> tuple[NDArray, NDArray]:
+    n, size, axes = points.shape
+    whole, along_out = np.full(n, -np.inf), np.full(n, -np.inf)
+    slope, p_mean = np.empty(axes), np.empty(axes)
+    for i in range(n):
+        m = count[i]
+        if m < MIN_POINTS:
+            continue
+        first = size - m  # the newest ``m`` entries
+        t_mean = 0.0
+        for s in range(first, size):
+            t_mean += times[i, s]
+        t_mean /= m
+        sxx = 0.0
+        for s in range(first, size):
+            sxx += (times[i, s] - t_mean) ** 2
+        sxx = max(sxx, 1e-12)
+        for a in range(axes):
+            p_mean[a] = 0.0
+            for s in range(first, size):
+                p_mean[a] += points[i, s, a]
+            p_mean[a] /= m
+            acc = 0.0
+            for s in range(first, size):
+                acc += (times[i, s] - t_mean) * (points[i, s, a] - p_mean[a])
+            slope[a] = acc / sxx
+        rss, rss_along, speed, speed_along = 0.0, 0.0, 0.0, 0.0
+        for a in range(axes):
+            speed += slope[a] ** 2
+            speed_along += slope[a] * direction[i, a]
+        for s in range(first, size):
+            dt = times[i, s] - t_mean
+            projected = 0.0
+            for a in range(axes):
+                residual = points[i, s, a] - p_mean[a] - dt * slope[a]
+                rss += residual**2
+                projected += residual * direction[i, a]
+            rss_along += projected**2
+        dof = max(m - 2.0, 0.0)
+        # the scatter per axis, never below the floor
+        whole[i] = np.sqrt(speed) - k * np.sqrt(max(rss / max(axes * dof, 1.0), floor_std**2) / sxx)
+        if along:
+            along_out[i] = abs(speed_along) - k * np.sqrt(max(rss_along / max(dof, 1.0), floor_std**2) / sxx)
+    return whole, along_out
