@@ -226,14 +226,15 @@ def anchors(
             np.zeros(n, dtype=bool),
         )
     voxels, counts, weights, counted = _stacked(clusters)
-    seen = NO_VIEW if view is None else np.asarray(view, dtype=np.float64)
+    # copies: a message decoded off the bus holds read-only arrays, which numba would compile for again
+    seen = NO_VIEW if view is None else np.array(view, dtype=np.float64)
     return _place(
         voxels,
         counts,
         weights,
         counted,
         centroids,
-        np.ascontiguousarray(pose, dtype=np.float64),
+        np.array(pose, dtype=np.float64, order="C"),
         float(edge),
         FACE_PERCENTILE / 100.0,
         NARROW_M,
