@@ -18,11 +18,11 @@ import pytest
 from conftest import REPO, stereovox_cmd
 
 from common.config import VolumeConfig
-from common.evaluation.breakdown import breakdown, format_breakdown
+from common.evaluation.breakdown import Breakdown, breakdown, format_breakdown, missed_kind
 from common.evaluation.evaluate import KEYS, evaluate_recording, matched_frames, stitched_poses
 from common.evaluation.inputs import ClusterBox, FrameClusters, read_inputs
 from common.evaluation.matching import DetectionView, TruthView, match, truth_in_vehicle
-from common.evaluation.segmentation import segmentation_figures
+from common.evaluation.segmentation import clusters_in_vehicle, segmentation_figures
 from common.evaluation.velocity import fit_velocities
 from common.geometry import camera_to_vehicle, invert, make_pose
 from common.messages import (
@@ -429,7 +429,12 @@ def test_why_counts_every_counted_object_frame_as_one_cluster_pct_does(tmp_path:
     assert one_pct == pytest.approx(100.0 * 15 / 40)
     table = format_breakdown(breakdown(run, matched_frames(run)))
     assert "counted objects by clusters on them (40 object-frames, one cluster 37.5 %)" in table
-    assert table.splitlines()[-1].split() == ["car", "40", "37.5", "5", "20", "52.6", "29.4", "0.0"]
+    lines = table.splitlines()
+    assert lines[lines.index(next(x for x in lines if x.startswith("counted objects"))) + 2].split() == [
+        "car", "40", "37.5", "5", "20", "52.6", "29.4", "0.0"
+    ]  # fmt: skip
+    # car 2 had no cluster at all: all 20 of its frames are missed with nothing reaching it
+    assert lines[-1].split() == ["car", "20", "0", "0", "20"]
 
 
 @pytest.mark.parametrize("damage", ["truncated", "not_mcap"])
@@ -485,6 +490,23 @@ def test_segmentation_one_split_missed_merged_and_phantom() -> None:
         "phantom_clusters_per_frame": 1.0,
     }
     assert segmentation_figures([(truths, frame)], gt_complete=False)["phantom_clusters_per_frame"] is None
+
+
+def test_a_missed_object_is_told_by_the_clusters_reaching_it() -> None:
+    own, shared_a, shared_b, untouched = (
+        truth_view(1, 10.0, 0.0), truth_view(2, 10.0, 3.0), truth_view(3, 10.0, 6.0), truth_view(4, 30.0, 0.0)
+    )  # fmt: skip
+    counted = [own, shared_a, shared_b, untouched]
+    boxes = [
+        # object 1's own cluster, its centroid pulled 1.5 m behind it by smear
+        ClusterBox(np.array([13.5, 0.0, 0.75]), np.array([8.2, -0.8, 0.1]), np.array([15.0, 0.8, 1.4])),
+        cluster_at([9.0, 2.5, 0.1], [11.0, 6.5, 1.4]),  # over objects 2 and 3, centred between them
+    ]
+    vehicle = clusters_in_vehicle(FrameClusters(np.eye(4), boxes))
+    kinds = [missed_kind(t, vehicle, counted) for t in counted]
+    assert kinds == ["own, off centre", "shared", "shared", "untouched"]
+    table = format_breakdown(Breakdown(missed=Counter(("car", k) for k in kinds)))
+    assert table.splitlines()[-1].split() == ["car", "4", "1", "2", "1"]
 
 
 def test_kitti_visibility_rules() -> None:

@@ -12,7 +12,11 @@ Segmentation is scored on more objects than the tracker (every counted object of
 standing or moving), so its own table follows: the counted object-frames per class as
 ``one_cluster_pct`` counts them, and the one-cluster share by range. Which class, and how far
 away, is what says whether the loss is stereo's (thin poles and walkers beyond 22 m, where a pixel
-of disparity is metres of range) or the clustering's.
+of disparity is metres of range) or the clustering's. A missed object is then told by the clusters
+whose boxes reach it: one of its own whose centroid the smear along the line of sight moved out of
+its box, only clusters that also reach another counted object (merged), or none at all (dropped as
+noise, or never seen). The three want different remedies: the first a centroid that the smear
+cannot move, the second a cut, the third a lower noise limit or better stereo.
 """
 
 from __future__ import annotations
@@ -36,6 +40,8 @@ SEGMENTS: tuple[str, ...] = ("one", "split", "merged", "none", "no clusters")
 
 #: how many clusters a counted object has, as segmentation.py counts them for ``one_cluster_pct``.
 COUNTS: tuple[str, ...] = ("one", "split", "missed")
+#: why a counted object has no cluster centred on it (``missed``), as ``missed_kind`` tells them.
+MISSED_KINDS: tuple[str, ...] = ("own, off centre", "shared", "untouched")
 #: range bands (m, from the vehicle) of the segmentation table: the upper ends of all but the last.
 BANDS_M: tuple[float, ...] = (15.0, 22.0)
 BAND_NAMES: tuple[str, ...] = ("< 15 m", "15-22 m", ">= 22 m")
@@ -51,6 +57,7 @@ class Breakdown:
     moving: Counter[Row] = field(default_factory=Counter)
     stationary: Counter[Row] = field(default_factory=Counter)
     segmentation: Counter[Row] = field(default_factory=Counter)  # counted object-frames, every frame
+    missed: Counter[tuple[str, str]] = field(default_factory=Counter)  # (class, MISSED_KINDS) of the missed ones
 
     def total(self, motion: str, outcome: str | None = None) -> int:
         rows: Counter[Row] = getattr(self, motion)
@@ -74,6 +81,21 @@ def segment_of(truth: TruthView, boxes: Boxes | None) -> str:
     return "merged" if overlaps else "none"
 
 
+def missed_kind(truth: TruthView, boxes: Boxes, counted: list[TruthView]) -> str:
+    """For an object no centroid lies on: whether a cluster of its own reaches it, only shared ones, or none.
+
+    A cluster is its own when its box reaches no other counted object (walls and buildings are not
+    counted, so a pole's cluster smeared onto the facade behind it is still its own).
+    """
+    _, lows, highs = boxes
+    touching = [k for k in range(len(lows)) if box_overlaps(lows[k], highs[k], truth)]
+    if not touching:
+        return MISSED_KINDS[2]
+    others = [u for u in counted if u is not truth]
+    own = any(not any(box_overlaps(lows[k], highs[k], u) for u in others) for k in touching)
+    return MISSED_KINDS[0] if own else MISSED_KINDS[1]
+
+
 def breakdown(run: RunInputs, frames: list[FrameMatch], warmup: int = WARMUP_FRAMES) -> Breakdown:
     """Every moving and stationary truth-frame scored by the figures, and every counted object-frame, in its row."""
     cls_of = {o.id: o.cls for gt in run.truth.values() for o in gt.objects}
@@ -82,13 +104,15 @@ def breakdown(run: RunInputs, frames: list[FrameMatch], warmup: int = WARMUP_FRA
     for frame in frames:
         if frame.frame_id not in boxes_of:
             continue
-        centroids = boxes_of[frame.frame_id][0]
-        for truth in frame.truths:
-            if truth.counted:
-                n = clusters_on(centroids, truth)
-                band = BAND_NAMES[int(np.searchsorted(BANDS_M, np.linalg.norm(truth.center[:2]), side="right"))]
-                count = COUNTS[0] if n == 1 else COUNTS[1] if n > 1 else COUNTS[2]
-                out.segmentation[(cls_of.get(truth.id, "?"), band, count)] += 1
+        boxes = boxes_of[frame.frame_id]
+        counted = [t for t in frame.truths if t.counted]
+        for truth in counted:
+            n = clusters_on(boxes[0], truth)
+            band = BAND_NAMES[int(np.searchsorted(BANDS_M, np.linalg.norm(truth.center[:2]), side="right"))]
+            count = COUNTS[0] if n == 1 else COUNTS[1] if n > 1 else COUNTS[2]
+            out.segmentation[(cls_of.get(truth.id, "?"), band, count)] += 1
+            if n == 0:
+                out.missed[(cls_of.get(truth.id, "?"), missed_kind(truth, boxes, counted))] += 1
     for frame, young in list(zip(frames, grace_ids(frames), strict=True))[warmup:]:
         det_of = frame.detection_of()
         boxes = boxes_of.get(frame.frame_id)
@@ -119,7 +143,23 @@ def format_breakdown(b: Breakdown) -> str:
             lines.append(f"  {cls:<12} {outcome:<12} {counts}")
     if b.segmentation:
         lines.extend(_segmentation_lines(b.segmentation))
+    if b.missed:
+        lines.extend(_missed_lines(b.missed))
     return "\n".join(lines)
+
+
+def _missed_lines(rows: Counter[tuple[str, str]]) -> list[str]:
+    """Per class: the missed object-frames by what the clusters reaching them are (MISSED_KINDS)."""
+    total = sum(rows.values())
+    lines = [
+        f"missed objects by the clusters reaching them ({total} object-frames): a cluster of its own off centre, "
+        "only clusters shared with another object, none",
+        f"  {'class':<12} {'missed':>7} " + " ".join(f"{k:>16}" for k in MISSED_KINDS),
+    ]
+    for cls in sorted({c for c, _ in rows}, key=lambda c: -sum(n for (k, _), n in rows.items() if k == c)):
+        counts = [rows.get((cls, kind), 0) for kind in MISSED_KINDS]
+        lines.append(f"  {cls:<12} {sum(counts):>7} " + " ".join(f"{n:>16}" for n in counts))
+    return lines
 
 
 def _segmentation_lines(rows: Counter[Row]) -> list[str]:
