@@ -98,6 +98,7 @@ def _pick(
     m = values.shape[0]
     order = np.argsort(values)
     for j, share in enumerate(by_voxels):
+        # rounded at the frame-wide position, as the all-numpy form did, so that it rounds alike
         k = int(np.ceil(start + share * m)) - 1 - start
         out[j] = values[order[min(max(k, 0), m - 1)]]
     if by_points.shape[0] > 0:
