@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import colorsys
 import dataclasses
+import subprocess
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from common.geometry import make_pose, rot_z
 from common.messages import Cluster, Clusters, EgoMotion, Obstacles
 from services.tracker import Tracker, kalman
 from services.tracker import anchor as anchor_module
+from services.tracker.against import REPO, compare
 from services.tracker.anchor import anchors
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
 from services.tracker.fragments import Sight, Standing, components, footprint, in_contact, merge, near_boxes
@@ -532,6 +534,7 @@ def test_the_faces_are_the_percentiles_of_each_clusters_own_voxels() -> None:
         assert seen == pytest.approx(np.array([[x, y_lo, z], [x, 0.5 * (y_lo + y_hi), z], [x, y_hi, z]]), abs=1e-9)
         assert far[k] == pytest.approx((far_x - x) * rotation[:, 0], abs=1e-9)
         assert side[k] == (2 if y_hi < 0 else 0 if y_lo > 0 else 1)
+
 
 def smeared(
     lo: tuple[float, float, float],
@@ -1080,3 +1083,14 @@ def test_a_slice_whose_ends_slide_along_the_road_is_not_called_moving_for_a_seco
 
     assert moving(0.0).index(True) <= 4
     assert not any(moving(Config().tracker.side_slice_m)[:10])
+
+
+def test_the_benchmark_times_a_revision_beside_this_tree_on_the_same_frames() -> None:
+    # against HEAD: with the tracker as committed (CI's clean clone) the two must agree exactly
+    out = compare("HEAD", objects=10, frames=15, repeats=1)
+    assert out["cpu_ms"] > 0.0 and out["against_cpu_ms"] > 0.0 and out["ratio"] > 0.0
+    diff = ["git", "-C", str(REPO), "diff", "--quiet", "HEAD", "--", "services/tracker"]
+    if subprocess.run(diff).returncode == 0:
+        assert out["same_output"]
+    with pytest.raises(SystemExit, match="no services/tracker"):
+        compare("no-such-revision", objects=2, frames=12, repeats=1)

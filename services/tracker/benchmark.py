@@ -4,7 +4,8 @@ Fifty objects move through the volume of interest for 100 frames, each a cluster
 a stereo camera sees of it (a pedestrian, a car's rear, a car's side: 28 to 216 voxels, as in
 the clusters of the synthetic urban runs, median 88), with centroid noise. The core runs with the
 default configuration; the median wall and CPU time of ``Tracker.process`` over frames 10-99 is
-printed per repeat. On a machine shared with other work, quote the median of the repeats.
+printed per repeat. On a machine shared with other work, quote the median of the repeats, or
+compare with an earlier revision frame by frame (``--against REV``, services/tracker/against.py).
 """
 
 from __future__ import annotations
@@ -91,7 +92,17 @@ def main() -> None:
     parser.add_argument("--objects", type=int, default=50)
     parser.add_argument("--frames", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--against", metavar="REV", help="a git revision: both trackers, frame by frame, in turn")
     args = parser.parse_args()
+    if args.against:
+        from services.tracker.against import compare  # imports this module: not at the top
+
+        out = compare(args.against, args.objects, args.frames, args.repeats)
+        print(
+            f"{args.objects} objects: this tree {out['cpu_ms']:.2f} ms, {args.against} {out['against_cpu_ms']:.2f} ms "
+            f"CPU per frame (medians); per-frame ratio {out['ratio']:.3f}; same obstacles: {out['same_output']}"
+        )
+        return
     voxels = [c.voxel_count for c in scene(1, args.objects, seed=0)[0][0].clusters]
     print(f"{args.objects} objects, voxels per cluster median {int(np.median(voxels))}, max {max(voxels)}")
     out = figures(args.objects, args.frames, args.repeats, show=True)
