@@ -6,8 +6,9 @@ cluster where its points are rather than where its voxels are (services/tracker/
 Colour mean and variance pool every point of the cluster's voxels (from the per-voxel sums), so a
 voxel seen by many points weighs more than one seen once. The centroid is the median, axis by
 axis, of the voxels' point centroids (each voxel once, so near surfaces, which collect many more
-points, do not pull it, and a few stray voxels of smear do not either). The box spans the voxel centroids grown by half an edge, which follows the surface to within
-a few centimetres where whole voxel cells would add up to an edge on each side.
+points, do not pull it, and a few stray voxels of smear do not either). The box spans the voxel
+centroids grown by half an edge, which follows the surface to within a few centimetres where
+whole voxel cells would add up to an edge on each side.
 """
 
 from __future__ import annotations
