@@ -22,7 +22,7 @@ from common.evaluation.breakdown import Breakdown, breakdown, format_breakdown, 
 from common.evaluation.evaluate import KEYS, evaluate_recording, matched_frames, stitched_poses
 from common.evaluation.inputs import ClusterBox, FrameClusters, read_inputs
 from common.evaluation.matching import DetectionView, TruthView, match, truth_in_vehicle
-from common.evaluation.segmentation import clusters_in_vehicle, segmentation_figures
+from common.evaluation.segmentation import clusters_in_vehicle, segmentation_figures, truths_share_volume
 from common.evaluation.velocity import fit_velocities
 from common.geometry import camera_to_vehicle, invert, make_pose
 from common.messages import (
@@ -507,6 +507,20 @@ def test_a_missed_object_is_told_by_the_clusters_reaching_it() -> None:
     assert kinds == ["own, off centre", "shared", "shared", "untouched"]
     table = format_breakdown(Breakdown(missed=Counter(("car", k) for k in kinds)))
     assert table.splitlines()[-1].split() == ["car", "4", "1", "2", "1"]
+
+
+def test_objects_the_scene_put_inside_each_other_are_told_apart_from_neighbours() -> None:
+    kiosk = TruthView(1, np.array([12.0, -5.5, 1.5]), np.array([3.7, 2.0, 2.8]), 0.3, np.zeros(3), True, "stationary")
+    inside = truth_view(2, 11.0, -4.8)  # a car-sized box reaching into the kiosk (turned by 0.3 rad)
+    beside = truth_view(3, 12.0, -3.0)  # its side (y -3.9) 0.1 m clear of the kiosk's corner (y -4.0)
+    above = TruthView(4, np.array([12.0, -5.5, 3.5]), np.array([0.5, 0.5, 1.0]), 0.0, np.zeros(3), True, "stationary")
+    assert truths_share_volume(kiosk, inside) and truths_share_volume(inside, kiosk)
+    assert not truths_share_volume(kiosk, beside)
+    assert not truths_share_volume(kiosk, above)  # over its roof (2.9 m), not in it
+    rows = Counter({("stationary", "kiosk", "no track"): 3, ("moving", "cyclist", "found"): 1})
+    table = format_breakdown(Breakdown(inside=rows)).splitlines()
+    assert table[-2].split() == ["moving", "cyclist", "1", "0", "0"]
+    assert table[-1].split() == ["stationary", "kiosk", "0", "0", "3"]
 
 
 def test_kitti_visibility_rules() -> None:

@@ -65,13 +65,29 @@ def box_overlaps(low: F64, high: F64, truth: TruthView) -> bool:
     """
     if high[2] <= truth.center[2] - truth.size[2] / 2 or low[2] >= truth.center[2] + truth.size[2] / 2:
         return False
-    corners = _corners_xy(truth)
     aabb = np.array([[low[0], low[1]], [low[0], high[1]], [high[0], high[1]], [high[0], low[1]]])
-    c, s = np.cos(truth.yaw), np.sin(truth.yaw)
-    for axis in (np.array([1.0, 0.0]), np.array([0.0, 1.0]), np.array([c, s]), np.array([-s, c])):
-        a, b = corners @ axis, aabb @ axis
-        if a.max() <= b.min() or b.max() <= a.min():
-            return False
+    return _footprints_meet(_corners_xy(truth), aabb, (0.0, truth.yaw))
+
+
+def truths_share_volume(a: TruthView, b: TruthView) -> bool:
+    """Whether two objects' oriented boxes share any volume: the scene has put one inside the other.
+
+    No real pair can, so a truth-frame that does is one neither stereo nor any clustering could
+    tell apart (a bin standing inside a kiosk, a cyclist riding through a pole).
+    """
+    if abs(a.center[2] - b.center[2]) >= (a.size[2] + b.size[2]) / 2:
+        return False
+    return _footprints_meet(_corners_xy(a), _corners_xy(b), (a.yaw, b.yaw))
+
+
+def _footprints_meet(a: F64, b: F64, yaws: tuple[float, float]) -> bool:
+    """Separating-axis test of two rectangles seen from above, whose sides lie along ``yaws``."""
+    for yaw in yaws:
+        c, s = np.cos(yaw), np.sin(yaw)
+        for axis in (np.array([c, s]), np.array([-s, c])):
+            pa, pb = a @ axis, b @ axis
+            if pa.max() <= pb.min() or pb.max() <= pa.min():
+                return False
     return True
 
 
