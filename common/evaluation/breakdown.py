@@ -124,6 +124,7 @@ def breakdown(run: RunInputs, frames: list[FrameMatch], warmup: int = WARMUP_FRA
     for frame, young in list(zip(frames, grace_ids(frames), strict=True))[warmup:]:
         det_of = frame.detection_of()
         boxes = boxes_of.get(frame.frame_id)
+        solid = [u for u in frame.truths if cls_of.get(u.id) not in OPEN_CLASSES]
         for t, truth in enumerate(frame.truths):
             motion = scored_class(truth, young)
             if motion == "ignored":
@@ -135,8 +136,7 @@ def breakdown(run: RunInputs, frames: list[FrameMatch], warmup: int = WARMUP_FRA
                 outcome = FOUND if frame.detections[d].moving == (motion == "moving") else WRONG_LABEL
             cls = cls_of.get(truth.id, "?")
             getattr(out, motion)[(cls, outcome, segment_of(truth, boxes))] += 1
-            solid = [u for u in frame.truths if u is not truth and cls_of.get(u.id) not in OPEN_CLASSES]
-            if cls not in OPEN_CLASSES and any(truths_share_volume(truth, u) for u in solid):
+            if cls not in OPEN_CLASSES and any(u is not truth and truths_share_volume(truth, u) for u in solid):
                 out.inside[(motion, cls, outcome)] += 1
     return out
 
