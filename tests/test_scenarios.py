@@ -15,10 +15,13 @@ from common.geometry import invert
 from common.messages import GroundTruthDisparity, GroundTruthObjects, StereoFrame
 from common.recording import open_recording
 from common.scenarios.catalogue import SCENARIOS, build
+from common.scenarios.clearance import shared_volume
+from common.scenarios.props import box, gantry, pedestrian
 from common.scenarios.raycast import Packed
 from common.scenarios.render import Renderer, Rig
 from common.scenarios.road import Road
 from common.scenarios.simulate import frame_messages, simulate_to_file
+from common.scenarios.street import keep_pace
 from common.scenarios.world import EgoProfile, Look, Material, Part, Thing, World
 from common.scenarios.world import Path as RoadPath
 from services.cli import main as cli_main
@@ -222,6 +225,60 @@ def test_ego_never_drives_through_an_object(name: str) -> None:
                 continue
             box = _footprint(st.pose[:2, 3], st.pose[:2, :2], st.thing.size[0], st.thing.size[1])
             assert not _overlap(ego_box, box), f"frame {k}: ego overlaps {st.thing.cls} {st.thing.id}"
+
+
+def test_the_clearance_check_finds_bodies_that_meet_and_passes_those_beneath_a_beam() -> None:
+    road = Road(y0=0.0)
+    clothes = (0.5, 0.2, 0.2)
+    things = (
+        box(1, "kiosk", RoadPath(-40.0, 7.5), (3.0, 1.8, 2.6), clothes),
+        box(2, "bin", RoadPath(-39.5, 7.0), (0.6, 0.6, 1.0), clothes),  # inside the kiosk
+        pedestrian(3, RoadPath(20.0, 7.2, vs=1.5), clothes, clothes),
+        pedestrian(4, RoadPath(30.0, 7.3, vs=-1.5, yaw=math.pi), clothes, clothes),  # meets 3 after 3.3 s
+        pedestrian(5, RoadPath(40.0, 7.9, vs=-1.5, yaw=math.pi), clothes, clothes),  # a lane further: passes
+        gantry(6, RoadPath(60.0, 0.0), 13.0, 2.8, clothes),
+        pedestrian(7, RoadPath(55.0, 0.0, vs=1.5), clothes, clothes),  # under the beam: free space
+        pedestrian(8, RoadPath(55.0, 6.5, vs=1.5), clothes, clothes),  # into the post at d = 6.5
+    )
+    found = {(a, b): t for t, a, b in shared_volume(road, things)}
+    assert set(found) == {(1, 2), (3, 4), (6, 8)}
+    assert found[(1, 2)] == 0.0
+    assert found[(3, 4)] == pytest.approx((10.0 - 0.32) / 3.0, abs=0.06)
+    assert found[(6, 8)] == pytest.approx((5.0 - 0.125 - 0.16) / 1.5, abs=0.06)
+
+
+def test_walkers_in_a_lane_never_reach_the_one_ahead() -> None:
+    movers = [(0.0, 1.9), (8.0, 1.4), (20.0, -1.5), (30.0, -1.8), (12.0, 0.0)]
+    speeds = keep_pace(movers, gap=1.0, horizon=30.0)
+    assert speeds[1] == 1.4 and speeds[2] == -1.5 and speeds[4] == 0.0
+    assert speeds[0] == pytest.approx(1.4 + 7.0 / 30.0)  # caught the slower one ahead at 30 s, not before
+    assert speeds[3] == pytest.approx(-(1.5 + 9.0 / 30.0))
+
+
+@pytest.mark.parametrize("name", list(SCENARIOS))
+@pytest.mark.parametrize("seed", [0, 7, 11])
+def test_no_two_bodies_ever_share_volume(name: str, seed: int) -> None:
+    """Bins outside kiosks, walkers past each other and the poles, cars clear of the fences."""
+    world = build(name, seed)
+    clashes = shared_volume(world.road, world.things)
+    cls = {t.id: t.cls for t in world.things}
+    assert not clashes, [(t, cls[a], a, cls[b], b) for t, a, b in clashes[:5]]
+
+
+@pytest.mark.parametrize("name", ["urban", "crossing"])
+def test_no_two_bodies_share_volume_where_the_world_puts_them(name: str) -> None:
+    """The same, from the poses the renderer uses and this file's own separating-axis test."""
+    world = build(name, seed=7)
+    solid = [t for t in world.things if t.cls not in ("sign", "barrier", "fence")]
+    for k in range(0, 150, 5):
+        states = [world.state(t, k / 10) for t in solid]
+        boxes = [_footprint(st.pose[:2, 3], st.pose[:2, :2], st.thing.size[0], st.thing.size[1]) for st in states]
+        centres = np.array([b.mean(axis=0) for b in boxes])
+        reach = np.array([math.hypot(*st.thing.size[:2]) / 2 for st in states])
+        near = np.linalg.norm(centres[:, None] - centres[None], axis=-1) < reach[:, None] + reach[None]
+        for i, j in zip(*np.nonzero(np.triu(near, 1)), strict=True):
+            where = f"{k / 10} s: {solid[i].cls} {solid[i].id} in {solid[j].cls} {solid[j].id}"
+            assert not _overlap(boxes[i], boxes[j]), where
 
 
 def test_bundled_recording_is_the_documented_one() -> None:

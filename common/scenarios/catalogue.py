@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from common.errors import ConfigError
 from common.scenarios import props
 from common.scenarios.road import Marking, Road, Zebra
-from common.scenarios.street import Street
+from common.scenarios.street import WAIT_U, Street, keep_pace
 from common.scenarios.world import EgoProfile, Look, Path, World
 
 #: the stretch of road furnished, whatever the number of frames (m along the road).
@@ -26,6 +26,8 @@ CITY_MARKINGS = (Marking(0.0, period=9.0, on=3.0), Marking(-3.4), Marking(3.4))
 #: m/s^2 a walker sets off and stops at: 1.4-1.8 m/s within about a second, two steps of gait
 #: initiation, not in one 0.1 s frame (which no filter can follow and no walker does)
 WALKER_ACCEL = 1.5
+#: a car's length and the distance it keeps to the one ahead in its lane (m)
+CAR_GAP_M = 6.0
 
 
 @dataclass(frozen=True)
@@ -36,13 +38,16 @@ class Scenario:
 
 
 def _oncoming(street: Street, d: float, seed_stream: int, speed: tuple[float, float], spacing: float) -> None:
-    """A stream of oncoming cars in one lane, spaced so one is always approaching."""
+    """A stream of oncoming cars in one lane, spaced so one is always approaching; none catches up."""
     rng = street.rng(seed_stream)
     s = 35.0 + rng.uniform(0, 10)
+    drawn = []
     while s < S_TO + 150:
-        v = rng.uniform(*speed)
-        street.add(props.car, Path(s, d, vs=-v, yaw=math.pi), props.pick(rng, props.CAR_COLOURS))
+        drawn.append((s, -rng.uniform(*speed), props.pick(rng, props.CAR_COLOURS)))
         s += spacing + rng.uniform(-5, 10)
+    paced = keep_pace([(s, v) for s, v, _ in drawn], gap=CAR_GAP_M)
+    for (s, _, colour), v in zip(drawn, paced, strict=True):
+        street.add(props.car, Path(s, d, vs=v, yaw=math.pi), colour)
 
 
 def urban(seed: int) -> World:
@@ -56,37 +61,47 @@ def urban(seed: int) -> World:
         street.walkers(side, S_FROM, S_TO, spacing=(4.0, 10.0))
     lead = Path(rng.uniform(13, 18), -1.6, vs=rng.uniform(10.8, 11.2))
     street.add(props.car, lead, props.pick(rng, props.CAR_COLOURS))
-    for start in (10.0, 35.0, 60.0):  # cyclists on the near bike path, passed one after another
-        rider = Path(start + rng.uniform(-2, 4), -6.6, vs=rng.uniform(5.0, 6.5))
-        street.add(props.cyclist, rider, props.pick(rng, props.CLOTHES))
+    # cyclists in the bike lane between the ego's lane and the parked cars, passed one after another
+    riders = [(start + rng.uniform(-2, 4), rng.uniform(5.0, 6.5), props.pick(rng, props.CLOTHES))
+              for start in (10.0, 35.0, 60.0)]
+    paced = keep_pace([(s, v) for s, v, _ in riders], gap=3.0)
+    for (s, _, colour), v in zip(riders, paced, strict=True):
+        street.add(props.cyclist, Path(s, -3.68, vs=v), colour)
     _oncoming(street, 1.6, 2, (8.0, 10.0), 35.0)
     ego = EgoProfile((0.0, 3.0, 6.0, 9.0, 30.0), (10.0, 11.5, 9.0, 10.0, 10.0), d=-1.6)
     return World("urban", road, tuple(street.things), ego)
 
 
 def crossing(seed: int) -> World:
-    zebra = (32.0, 36.0)
+    zebra = (32.0, 38.0)
     road = Road(y0=1.6, markings=CITY_MARKINGS, zebras=(Zebra(*zebra),))
     street = Street(seed, road)
     rng = street.rng(1)
     junction = (40.0, 52.0)
-    street.street(S_FROM, S_TO, gaps=((zebra[0] - 4, junction[1]),))
     # walkers cross from both kerbs while the ego waits; they clear its lane before it moves off.
-    # Each sets off and stops at WALKER_ACCEL, so the crossing takes speed / WALKER_ACCEL longer
+    # Each sets off and stops at WALKER_ACCEL, so the crossing takes speed / WALKER_ACCEL longer.
+    # Each keeps to its own half of the zebra and to its own place in that half, where it waits at
+    # the kerb and ends up at the far one, so no walker walks into another
+    kerb = road.half_width + WAIT_U
+    halves = {-1: zebra[0], 1: sum(zebra) / 2}
+    slot = (zebra[1] - zebra[0]) / 8
+    places = {side: rng.permutation(4) for side in (-1, 1)}
     for k in range(8):
         side = -1 if k % 2 == 0 else 1
         speed = rng.uniform(1.4, 1.8)
         start = 0.05 + 0.35 * k + rng.uniform(0, 0.3)
-        width = 2 * (road.half_width + 1.0)
-        path = Path(rng.uniform(*zebra), side * (road.half_width + 1.0), vd=-side * speed,
-                    t_start=start, t_end=start + width / speed + speed / WALKER_ACCEL, yaw=-side * math.pi / 2,
+        s = halves[side] + (places[side][k // 2] + 0.5) * slot + rng.uniform(-0.08, 0.08)
+        end = start + 2 * kerb / speed + speed / WALKER_ACCEL
+        path = Path(s, side * kerb, vd=-side * speed, t_start=start, t_end=end, yaw=-side * math.pi / 2,
                     accel=WALKER_ACCEL)
-        street.add(props.pedestrian, path, props.pick(rng, props.CLOTHES), props.pick(rng, props.CLOTHES[:3]))
+        street.place(props.pedestrian, path, props.pick(rng, props.CLOTHES), props.pick(rng, props.CLOTHES[:3]))
     # cars crossing on the side road, one each way, while the ego stands
     for side, start, lane in ((-1, 1.05, 47.6), (1, 4.05, 44.4)):
         v = rng.uniform(6.0, 8.0)
         path = Path(lane, side * 35.0, vd=-side * v, t_start=start, t_end=start + 70.0 / v, yaw=-side * math.pi / 2)
         street.add(props.car, path, props.pick(rng, props.CAR_COLOURS))
+    # the sidewalks last: their walkers keep clear of the crossing walkers and cars
+    street.street(S_FROM, S_TO, gaps=((zebra[0] - 4, junction[1]),))
     # a lorry queueing in the oncoming lane, beside the stopped ego: a third of the view
     street.add(props.truck, Path(rng.uniform(24.0, 26.0), 1.7, yaw=math.pi), props.pick(rng, props.FACADES))
     ego = EgoProfile((0.0, 1.0, 4.0, 9.0, 11.0, 30.0), (8.0, 8.0, 0.0, 0.0, 6.0, 8.0), d=-1.6)
@@ -121,12 +136,12 @@ def hanging(seed: int) -> World:
     street = Street(seed, road)
     rng = street.rng(1)
     works = ((18.0, 24.0), (33.0, 40.0), (52.0, 60.0))
-    street.street(S_FROM, S_TO, gaps=works)
     reach = 5.2
     street.add(props.cantilever_sign, Path(20.0, -(road.half_width + 0.4) + reach / 2), reach, (0.1, 0.3, 0.7))
     street.add(props.gantry, Path(37.0, 0.0), 2 * road.half_width + 1.0, 2.8, (0.85, 0.65, 0.1))
     street.add(props.u_fence, Path(rng.uniform(54, 58), -4.6), 3.0, 2.2, (0.85, 0.3, 0.15))
     street.add(props.u_fence, Path(rng.uniform(75, 85), 4.6, yaw=math.pi), 3.0, 2.2, (0.85, 0.3, 0.15))
+    street.street(S_FROM, S_TO, gaps=works)  # after the works: parked cars keep clear of the fences
     lead = Path(rng.uniform(12, 16), -1.6, vs=rng.uniform(7.0, 7.3))
     street.add(props.car, lead, props.pick(rng, props.CAR_COLOURS))
     _oncoming(street, 1.6, 2, (6.0, 8.0), 40.0)
