@@ -80,17 +80,16 @@ def crossing(seed: int) -> World:
     junction = (40.0, 52.0)
     # walkers cross from both kerbs while the ego waits; they clear its lane before it moves off.
     # Each sets off and stops at WALKER_ACCEL, so the crossing takes speed / WALKER_ACCEL longer.
-    # Each keeps to its own half of the zebra and to its own place in that half, where it waits at
-    # the kerb and ends up at the far one, so no walker walks into another
+    # Each has its own place across the zebra's width, where it waits at the kerb, walks and ends
+    # up at the far kerb, so walkers from the two kerbs pass each other and nobody walks into anybody
     kerb = road.half_width + WAIT_U
-    halves = {-1: zebra[0], 1: sum(zebra) / 2}
     slot = (zebra[1] - zebra[0]) / 8
-    places = {side: rng.permutation(4) for side in (-1, 1)}
+    places = rng.permutation(8)
     for k in range(8):
         side = -1 if k % 2 == 0 else 1
         speed = rng.uniform(1.4, 1.8)
         start = 0.05 + 0.35 * k + rng.uniform(0, 0.3)
-        s = halves[side] + (places[side][k // 2] + 0.5) * slot + rng.uniform(-0.08, 0.08)
+        s = zebra[0] + (places[k] + 0.5) * slot + rng.uniform(-0.08, 0.08)
         end = start + 2 * kerb / speed + speed / WALKER_ACCEL
         path = Path(s, side * kerb, vd=-side * speed, t_start=start, t_end=end, yaw=-side * math.pi / 2,
                     accel=WALKER_ACCEL)
