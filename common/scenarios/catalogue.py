@@ -54,19 +54,20 @@ def urban(seed: int) -> World:
     road = Road(y0=1.6, curve_start=40.0, radius=120.0, markings=CITY_MARKINGS)
     street = Street(seed, road)
     rng = street.rng(1)
-    for side, parking in ((-1, 0.35), (1, 0.65)):  # fewer parked cars hiding the near sidewalk
+    for side in (-1, 1):  # on the near side a bike lane along the kerb instead of parked cars
         street.frontage(side, S_FROM, S_TO)
         street.furniture(side, S_FROM, S_TO)
-        street.parked(side, S_FROM, S_TO, share=parking)
+        if side > 0:
+            street.parked(side, S_FROM, S_TO, share=0.65)
         street.walkers(side, S_FROM, S_TO, spacing=(4.0, 10.0))
     lead = Path(rng.uniform(13, 18), -1.6, vs=rng.uniform(10.8, 11.2))
     street.add(props.car, lead, props.pick(rng, props.CAR_COLOURS))
-    # cyclists in the bike lane between the ego's lane and the parked cars, passed one after another
+    # cyclists in the bike lane, 0.8 m from the kerb and 3.6 m right of the ego, passed one after another
     riders = [(start + rng.uniform(-2, 4), rng.uniform(5.0, 6.5), props.pick(rng, props.CLOTHES))
               for start in (10.0, 35.0, 60.0)]
     paced = keep_pace([(s, v) for s, v, _ in riders], gap=3.0)
     for (s, _, colour), v in zip(riders, paced, strict=True):
-        street.add(props.cyclist, Path(s, -3.68, vs=v), colour)
+        street.add(props.cyclist, Path(s, -(road.half_width - 0.8), vs=v), colour)
     _oncoming(street, 1.6, 2, (8.0, 10.0), 35.0)
     ego = EgoProfile((0.0, 3.0, 6.0, 9.0, 30.0), (10.0, 11.5, 9.0, 10.0, 10.0), d=-1.6)
     return World("urban", road, tuple(street.things), ego)
@@ -169,7 +170,8 @@ def lowtexture(seed: int) -> World:
 SCENARIOS: dict[str, Scenario] = {
     s.name: s
     for s in (
-        Scenario("urban", "city street, ego 9-11.5 m/s into a bend; parked and moving cars, walkers, a cyclist", urban),
+        Scenario("urban", "city street, ego 9-11.5 m/s into a bend; parked and moving cars, walkers, "
+                 "cyclists in a bike lane", urban),
         Scenario("crossing", f"stop-and-go at a zebra: walkers (setting off and stopping at {WALKER_ACCEL} m/s^2) "
                  "and two cars cross ahead; a lorry fills a third of the view", crossing),
         Scenario("overtake", "three lanes one way at 12 m/s: overtaking, overtaken, lead and oncoming traffic "
