@@ -116,8 +116,8 @@ class Street:
                 spacing: tuple[float, float] = (7.0, 15.0)) -> None:
         """Pedestrians on a sidewalk, walking either way at 1.4-1.9 m/s or waiting at the kerb.
 
-        A walker slower than the one ahead in its lane sets the pace for those behind, so nobody
-        walks through anybody; one whose lane is crossed by traffic while it passes is left out,
+        A walker faster than the one ahead in its lane is slowed so that he never reaches him, as
+        nobody walks through anybody; one whose lane is crossed by traffic while he passes is left out,
         and one waiting at the kerb takes the first place clear of the poles and bins.
         """
         rng = self.rng(40 + side)
