@@ -117,6 +117,11 @@ class Obstacle:
     color_rgb: NDArray = array_field("float32", (3,))
 
 
+#: truth classes whose box holds free space (a gantry's beam over the road, a sign's arm over a
+#: lane, a U-shaped fence): what stands under or in one is not inside it.
+OPEN_CLASSES: frozenset[str] = frozenset({"barrier", "sign", "fence"})
+
+
 @dataclass(kw_only=True)
 class GroundTruthObject:
     """A true object; box centre is the geometric centre, in the world frame.

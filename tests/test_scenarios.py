@@ -12,7 +12,7 @@ import pytest
 
 from common.errors import ConfigError
 from common.geometry import invert
-from common.messages import GroundTruthDisparity, GroundTruthObjects, StereoFrame
+from common.messages import OPEN_CLASSES, GroundTruthDisparity, GroundTruthObjects, StereoFrame
 from common.recording import open_recording
 from common.scenarios.catalogue import SCENARIOS, build
 from common.scenarios.clearance import shared_volume
@@ -269,7 +269,7 @@ def test_no_two_bodies_ever_share_volume(name: str, seed: int) -> None:
 def test_no_two_bodies_share_volume_where_the_world_puts_them(name: str) -> None:
     """The same, from the poses the renderer uses and this file's own separating-axis test."""
     world = build(name, seed=7)
-    solid = [t for t in world.things if t.cls not in ("sign", "barrier", "fence")]
+    solid = [t for t in world.things if t.cls not in OPEN_CLASSES]
     for k in range(0, 150, 5):
         states = [world.state(t, k / 10) for t in solid]
         boxes = [_footprint(st.pose[:2, 3], st.pose[:2, :2], st.thing.size[0], st.thing.size[1]) for st in states]

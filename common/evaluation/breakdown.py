@@ -35,6 +35,7 @@ from common.evaluation.inputs import RunInputs
 from common.evaluation.matching import FrameMatch, TruthView
 from common.evaluation.metrics import WARMUP_FRAMES, grace_ids, scored_class
 from common.evaluation.segmentation import box_overlaps, clusters_in_vehicle, clusters_on, truths_share_volume
+from common.messages import OPEN_CLASSES
 
 #: what the tracker made of a scored truth-frame, for a moving and for a stationary object.
 FOUND, WRONG_LABEL, NO_TRACK = "found", "wrong label", "no track"
@@ -49,9 +50,6 @@ MISSED_KINDS: tuple[str, ...] = ("own, off centre", "shared", "untouched")
 #: range bands (m, from the vehicle) of the segmentation table: the upper ends of all but the last.
 BANDS_M: tuple[float, ...] = (15.0, 22.0)
 BAND_NAMES: tuple[str, ...] = ("< 15 m", "15-22 m", ">= 22 m")
-#: structures whose truth box holds free space (a gantry's beam over the road, a sign's arm over a
-#: lane, a U-shaped fence): what stands under or in one is not inside it.
-OPEN_CLASSES: frozenset[str] = frozenset({"barrier", "sign", "fence"})
 
 F64 = npt.NDArray[np.float64]
 Row = tuple[str, str, str]  # (object class, outcome, segment); segmentation: (class, band, count)

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from common.messages import OPEN_CLASSES
 from common.scenarios.road import Road
 from common.scenarios.world import Thing
 
@@ -31,7 +32,6 @@ HORIZON_S = 30.0
 STEP_S = 0.05
 #: parts whose bottom is this high are overhead: walkers and cars pass beneath them
 OVERHEAD_M = 2.0
-OPEN_CLASSES: frozenset[str] = frozenset({"barrier", "sign", "fence"})
 
 
 @dataclass(frozen=True)
@@ -95,8 +95,12 @@ class Register:
         self._parts: dict[bool, list[tuple[int, Footprints]]] = {True: [], False: []}
         self._stacked: dict[bool, tuple[Footprints, npt.NDArray[np.int64]] | None] = {True: None, False: None}
 
-    def add(self, thing: Thing) -> None:
-        prints = footprints(self.road, thing, self.at)
+    def footprints(self, thing: Thing) -> Footprints:
+        return footprints(self.road, thing, self.at)
+
+    def add(self, thing: Thing, prints: Footprints | None = None) -> None:
+        """Register ``thing``; ``prints`` are its footprints when ``meetings`` already computed them."""
+        prints = self.footprints(thing) if prints is None else prints
         still = len(prints.centre) == 1
         self._parts[still].append((thing.id, prints))
         self._stacked[still] = None
@@ -114,9 +118,8 @@ class Register:
             self._stacked[still] = (prints, owners)
         return self._stacked[still]
 
-    def meetings(self, thing: Thing) -> list[tuple[float, int]]:
-        """(first time, id) of everything ``thing`` would meet, earliest first."""
-        new = footprints(self.road, thing, self.at)
+    def meetings(self, new: Footprints) -> list[tuple[float, int]]:
+        """(first time, id) of everything an object with footprints ``new`` would meet, earliest first."""
         reach_new = np.linalg.norm(new.half, axis=-1)
         first: dict[int, float] = {}
         for still in (True, False):
@@ -147,6 +150,7 @@ def shared_volume(road: Road, things: tuple[Thing, ...] | list[Thing]) -> list[t
     register = Register(road)
     found: list[tuple[float, int, int]] = []
     for thing in things:
-        found.extend((t, other, thing.id) for t, other in register.meetings(thing))
-        register.add(thing)
+        prints = register.footprints(thing)
+        found.extend((t, other, thing.id) for t, other in register.meetings(prints))
+        register.add(thing, prints)
     return found

@@ -56,9 +56,13 @@ class Street:
 
     def place(self, make: Callable[..., Thing], *args: object) -> Thing | None:
         """Add the object unless it would meet something already placed, at any time."""
-        if self.register.meetings(make(len(self.things) + 1, *args)):
+        thing = make(len(self.things) + 1, *args)
+        prints = self.register.footprints(thing)
+        if self.register.meetings(prints):
             return None
-        return self.add(make, *args)
+        self.things.append(thing)
+        self.register.add(thing, prints)
+        return thing
 
     def frontage(self, side: int, s_from: float, s_to: float, gaps: tuple[Gap, ...] = ()) -> None:
         """Buildings, walls and kiosks along the back of one sidewalk (side +1 left, -1 right)."""
