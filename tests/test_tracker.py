@@ -282,6 +282,32 @@ def test_constant_velocity_target_speed_converges() -> None:
     assert o.moving and o.state == "tracked"
 
 
+def speeds_after_a_jump(jump_speed_std: float) -> list[float]:
+    """A car at 8 m/s whose cluster steps back 2 m and goes on at 1.5 m/s (the track slid onto
+    something slower); the gates are open so that every cluster is associated."""
+    rng = np.random.default_rng(3)
+    tracker = new_tracker(jump_speed_std=jump_speed_std, position_gate=1e9, gate=1e9)
+    position, speeds = np.array([6.0, 3.0, 0.75]), []
+    for k in range(30):
+        if k == 15:
+            position = position - np.array([2.0, 0.0, 0.0])
+        position = position + np.array([8.0 if k < 15 else 1.5, 0.0, 0.0]) * 0.1
+        out = step(tracker, k, [cluster(0, position + rng.normal(scale=[0.05, 0.05, 0.02]), size=(4.0, 1.8, 1.5))])
+        (o,) = out.obstacles
+        assert o.id == 1
+        speeds.append(o.speed)
+    return speeds
+
+
+def test_a_re_anchored_track_learns_its_new_speed_again() -> None:
+    # the jump re-anchors the position; with its kept velocity doubted, the next clusters set it
+    # again, where without the doubt it stays near 8 m/s, re-anchored frame after frame
+    doubted, kept = speeds_after_a_jump(3.0), speeds_after_a_jump(0.0)
+    assert doubted[14] == pytest.approx(8.0, abs=0.3) and kept[14] == pytest.approx(8.0, abs=0.3)
+    assert abs(doubted[22] - 1.5) < 0.5
+    assert kept[22] > 6.0
+
+
 def test_moving_label_needs_a_trustworthy_speed_and_comes_within_five_frames() -> None:
     rng = np.random.default_rng(2)
     tracker = new_tracker()

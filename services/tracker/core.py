@@ -11,11 +11,13 @@ The filter follows a cluster's faces turned to the camera (anchor.py), not its c
 slides as more or less of the object comes into view, or its far end where the image's side edge
 cuts its near one; the reported centroid is still the cluster's. A measurement further from the
 prediction than ``jump_nis`` allows is a cluster that changed shape (split, merged, another face
-in view): it re-anchors the position and leaves the velocity alone, since the step says nothing
-about how the object moves. The velocity so kept can be stale (learnt from a face that slid, then
-carried on by re-anchoring: on KITTI tracking 0001 static structures kept 3-6 m/s for 10-20
-frames), so the moving label also needs the slope of the track's last faces to agree
-(motion_window.py, labelling.py).
+in view): it re-anchors the position and keeps the velocity, since the step says nothing about
+how the object moves, but doubts it by ``jump_speed_std`` more. The velocity so kept can be stale
+(learnt from a face that slid, then carried on by re-anchoring: on KITTI tracking 0001 static
+structures kept 3-6 m/s for 10-20 frames; on synthetic urban-s8 a track that slid onto a walker
+kept 8-10 m/s against his 1.7 for sixteen frames, re-anchored every second or third), so the
+doubt lets the next clusters set it again, and the moving label also needs the slope of the
+track's last faces to agree (motion_window.py, labelling.py).
 
 Bad input is handled where it arrives and counted in ``counters``: clusters with non-finite
 geometry are dropped (``nan_clusters``); a frame whose id is not newer than the last is ignored
@@ -98,6 +100,7 @@ class Tracker:
         side_slice_m: float = 0.0,
         coasting: Coasting = NO_COASTING,
         view_margin_m: float = 0.0,
+        jump_speed_std: float = 0.0,
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -122,6 +125,7 @@ class Tracker:
         self.side_slice_m = side_slice_m
         self.coasting = coasting
         self.view_margin_m = view_margin_m
+        self.jump_speed_var = jump_speed_std**2
         self.upright_accel_std = (
             None if upright_accel_std is None else np.array([upright_accel_std, upright_accel_std, self.accel_std[2]])
         )
@@ -169,6 +173,7 @@ class Tracker:
             side_slice_m=t.side_slice_m,
             coasting=Coasting(t.coast_merged_frames, t.coast_min_age, t.coast_max_speed_mps),
             view_margin_m=t.view_margin_m,
+            jump_speed_std=t.jump_speed_std,
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
@@ -328,6 +333,7 @@ class Tracker:
         x, p = kalman.update(x_before, p_before, point, r)
         # a centroid further off than the filter allows is a cluster that changed (split, merge,
         # another face in view), not the object moving: re-anchor the position, keep the velocity
+        # but doubt it (docs/results/tracking.md, "Session 33")
         jump = nis * 3.0 > self.jump_nis
         # a ghost found again metres from where it was predicted may be another object: one seen
         # a few frames, its speed unknown, takes the step as speed, and a window spanning the gap
@@ -340,6 +346,8 @@ class Tracker:
         p[jump, 0:3, 0:3] = r[jump]
         p[jump, 0:3, 3:6] = 0.0
         p[jump, 3:6, 0:3] = 0.0
+        p[jump, 3, 3] += self.jump_speed_var
+        p[jump, 4, 4] += self.jump_speed_var
         # and the faces of the old shape say nothing about the new one's motion, even where the
         # filter let a change of extent pass as visibility (a parked car leaving the blob it was
         # merged into); a track already moving keeps its faces, which its label stays on
