@@ -211,6 +211,7 @@ class TrackerConfig:
     frame_period_s: float = 0.1  # time step when stamps cannot give one
     jump_nis: float = 7.8  # innovation (squared Mahalanobis, 3 dof; 7.8 = chi2 95 %) that re-anchors, not corrects
     jump_speed_std: float = 3.0  # ... and doubts the velocity it keeps by this much more (m/s, horizontal); 0 = not
+    young_jump_frames: int = 0  # ... a track younger than this (frames) is not paired with such a cluster; 0 = off
     fragment_margin: float = 0.25  # clusters in a known track's predicted box grown by this (m) merge; < 0: off
     fragment_gap: float = 0.1  # ... only pieces whose boxes touch (chained by gaps up to this, m); < 0: any
     fragment_standing_m: float = 0.3  # ... two reaching this near their floor (m) only if footprints touch; < 0: off

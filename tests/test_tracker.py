@@ -308,6 +308,25 @@ def test_a_re_anchored_track_learns_its_new_speed_again() -> None:
     assert kept[22] > 6.0
 
 
+def ids_after_a_step(step_frame: int, young_jump_frames: int) -> list[list[int]]:
+    """A standing box whose cluster is 3 m further off from ``step_frame`` on (gates open)."""
+    tracker = new_tracker(young_jump_frames=young_jump_frames, position_gate=1e9, gate=1e9)
+    ids = []
+    for k in range(step_frame + 3):
+        centre = (8.0, 3.0, 0.75) if k < step_frame else (11.0, 3.0, 0.75)
+        out = step(tracker, k, [cluster(0, centre, size=(1.0, 1.0, 1.5))])
+        ids.append(sorted(o.id for o in out.obstacles if o.state != "ghost"))
+    return ids
+
+
+def test_a_young_track_is_not_carried_onto_a_cluster_it_would_re_anchor_on() -> None:
+    # three frames old, the track is left behind and the far cluster starts its own track ...
+    assert ids_after_a_step(3, young_jump_frames=4)[3:] == [[2], [2], [2]]
+    assert ids_after_a_step(3, young_jump_frames=0)[3:] == [[1], [1], [1]]
+    # ... four frames old, it re-anchors on it and keeps its identity
+    assert ids_after_a_step(4, young_jump_frames=4)[4:] == [[1], [1], [1]]
+
+
 def test_moving_label_needs_a_trustworthy_speed_and_comes_within_five_frames() -> None:
     rng = np.random.default_rng(2)
     tracker = new_tracker()

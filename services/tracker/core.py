@@ -17,7 +17,9 @@ how the object moves, but doubts it by ``jump_speed_std`` more. The velocity so 
 structures kept 3-6 m/s for 10-20 frames; on synthetic urban-s8 a track that slid onto a walker
 kept 8-10 m/s against his 1.7 for sixteen frames, re-anchored every second or third), so the
 doubt lets the next clusters set it again, and the moving label also needs the slope of the
-track's last faces to agree (motion_window.py, labelling.py).
+track's last faces to agree (motion_window.py, labelling.py). Optionally (``young_jump_frames``,
+off) a track too young to have a shape of its own is not re-anchored: such a cluster is left to
+start its own track.
 
 Bad input is handled where it arrives and counted in ``counters``: clusters with non-finite
 geometry are dropped (``nan_clusters``); a frame whose id is not newer than the last is ignored
@@ -101,6 +103,7 @@ class Tracker:
         coasting: Coasting = NO_COASTING,
         view_margin_m: float = 0.0,
         jump_speed_std: float = 0.0,
+        young_jump_frames: int = 0,
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -126,6 +129,7 @@ class Tracker:
         self.coasting = coasting
         self.view_margin_m = view_margin_m
         self.jump_speed_var = jump_speed_std**2
+        self.young_jump_frames = young_jump_frames
         self.upright_accel_std = (
             None if upright_accel_std is None else np.array([upright_accel_std, upright_accel_std, self.accel_std[2]])
         )
@@ -174,6 +178,7 @@ class Tracker:
             coasting=Coasting(t.coast_merged_frames, t.coast_min_age, t.coast_max_speed_mps),
             view_margin_m=t.view_margin_m,
             jump_speed_std=t.jump_speed_std,
+            young_jump_frames=t.young_jump_frames,
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
@@ -189,7 +194,7 @@ class Tracker:
         pieces = self._gather(clusters, sight)
         obs = self._observe(pieces, pose, clusters.voxel_edge, clusters.view)
         r = self._cluster_cov(obs, pose, clusters.voxel_edge)
-        rows, cols = self._associate(obs, r)
+        rows, cols = self._leave_young_jumps(*self._associate(obs, r), obs, r)
         if trusted:
             self._correct(rows, obs.take(cols), r[cols])
         piece_of = {int(i): pieces[int(obs.index[j])] for i, j in zip(rows, cols, strict=True)}
@@ -292,6 +297,30 @@ class Tracker:
             obs.centroid, obs.rgb, obs.hsl, obs.extent, obs.density,
         )  # fmt: skip
         return greedy_pairs(d, self.weights.gate)
+
+    def _leave_young_jumps(
+        self, rows: NDArray, cols: NDArray, obs: Observations, r: NDArray
+    ) -> tuple[NDArray, NDArray]:
+        """Unpair each track younger than ``young_jump_frames`` from a cluster it would re-anchor on.
+
+        Re-anchoring lets a track whose object changed shape keep its identity. A young track has
+        no settled shape: a cluster that far off is more often the next object along the row
+        (synthetic urban-s8's track 25 went wall -> pole -> bin -> walker, each at the range the
+        last had as the vehicle closed in). Left unpaired, the young track misses a frame and the
+        cluster starts its own. The innovation is the prediction's, before ``_correct`` turns a
+        track to another face. Off by default: on KITTI tracking 0001 the clusters so freed started
+        phantom tracks on far structures (docs/results/tracking.md, "Session 33").
+        """
+        if self.young_jump_frames <= 0 or len(rows) == 0:
+            return rows, cols
+        t = self.tracks
+        young = t.age[rows] < self.young_jump_frames
+        if not young.any():
+            return rows, cols
+        scale = np.maximum(t.nis[rows], 1.0)[:, None, None]
+        nis = kalman.normalised_innovation(t.x[rows], t.p[rows], obs.followed[cols], r[cols] * scale)
+        keep = ~(young & (nis * 3.0 > self.jump_nis))
+        return rows[keep], cols[keep]
 
     @staticmethod
     def _placement_pose(clusters: Clusters, ego: EgoMotion) -> NDArray:
