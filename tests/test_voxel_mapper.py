@@ -155,7 +155,8 @@ def test_a_walker_of_two_small_colours_is_one_cluster() -> None:
     legs = box((10.05, -0.2, 0.3), (10.3, 0.2, 0.95), BLUE)
     parts = mapper(min_cluster_voxels=1, join_share=2.0).process(cloud(road(), coat, legs), ego())
     assert sorted(c.voxel_count for c in parts.clusters) == [12, 12]
-    assert mapper(join_min_voxels=20).process(cloud(road(), coat, legs), ego()).clusters == []  # dropped as noise
+    # with no join and only big neighbours to aggregate into, both are dropped as noise
+    assert mapper(join_min_voxels=20).process(cloud(road(), coat, legs), ego()).clusters == []
     out = mapper().process(cloud(road(), coat, legs), ego())
     assert len(out.clusters) == 1 and out.clusters[0].voxel_count == 24
     assert out.clusters[0].bbox_min[2] == pytest.approx(0.3, abs=0.1)
@@ -186,6 +187,20 @@ def test_small_cluster_touching_a_big_one_is_merged() -> None:
     assert len(out.clusters) == 1
     assert out.clusters[0].voxel_count == alone.clusters[0].voxel_count + 1
     assert out.clusters[0].bbox_max[0] > 8.1
+
+
+def test_small_pieces_touching_only_each_other_add_up_to_a_cluster() -> None:
+    """Alg. IV-B.2 taken in turn: coat, trousers and head of 12, 8 and 4 voxels, none joined."""
+    coat = box((10.05, -0.2, 1.0), (10.3, 0.2, 1.45), RED)
+    legs = box((10.05, -0.2, 0.3), (10.3, 0.2, 0.95), BLUE)
+    head = box((10.05, -0.1, 1.5), (10.3, 0.1, 1.7), GREEN)
+    scene = cloud(road(), coat, legs, head)
+    pieces = mapper(min_cluster_voxels=1, join_share=2.0).process(scene, ego())
+    assert len(pieces.clusters) == 3 and sum(c.voxel_count for c in pieces.clusters) >= 20
+    assert all(c.voxel_count < 20 for c in pieces.clusters)
+    out = mapper(join_share=2.0, aggregate_in_turn=True).process(scene, ego())
+    assert [c.voxel_count for c in out.clusters] == [sum(c.voxel_count for c in pieces.clusters)]
+    assert mapper(join_share=2.0).process(scene, ego()).clusters == []  # only into a big one: all dropped
 
 
 def test_static_box_stays_fixed_in_the_world_while_the_vehicle_moves() -> None:

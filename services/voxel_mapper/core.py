@@ -76,7 +76,7 @@ class VoxelMapper:
                  bridge_voxels: int = 3, points_range_m: float = 0.0, min_points_far: int = 2,
                  join_min_voxels: int = 0, cut_tall_m: float = 0.0, cut_low_m: float = 2.2,
                  cut_min_voxels: int = 12, step_voxels: int = 0, group_dense_share: float = 0.0,
-                 group_min_voxels: int = 40) -> None:
+                 group_min_voxels: int = 40, aggregate_in_turn: bool = False) -> None:
         if edge <= 0.0:
             raise ConfigError(f"voxel.edge must be > 0, got {edge}")
         self.map = VoxelMap(edge, keep_frames)
@@ -85,6 +85,7 @@ class VoxelMapper:
         self.epsilon = epsilon
         self.min_cluster_voxels = min_cluster_voxels
         self.min_density = min_density
+        self.aggregate_in_turn = aggregate_in_turn
         self.min_points = min_points_per_voxel
         self.clearance = ground_clearance
         self.join_share = join_share
@@ -114,7 +115,8 @@ class VoxelMapper:
                    points_range_m=v.points_range_m, min_points_far=v.min_points_far,
                    join_min_voxels=v.join_min_voxels, cut_tall_m=v.cut_tall_m, cut_low_m=v.cut_low_m,
                    cut_min_voxels=v.cut_min_voxels, step_voxels=v.step_bridge_voxels,
-                   group_dense_share=v.group_dense_share, group_min_voxels=v.group_min_voxels)
+                   group_dense_share=v.group_dense_share, group_min_voxels=v.group_min_voxels,
+                   aggregate_in_turn=v.aggregate_in_turn)
 
     def process(self, cloud: PointCloud, ego: EgoMotion) -> Clusters:
         """Update the map with one frame and cluster the voxels above the road."""
@@ -129,7 +131,8 @@ class VoxelMapper:
                             self.join_share, self.bridge_voxels, self.step_voxels)
         if self.cut[0] > 0.0:
             labels, n_clusters = cut_low_parts(labels, n_clusters, self.map.coords, height, *self.cut)
-        labels = aggregate(labels, n_clusters, touching_pairs(self.map, labels), self.min_cluster_voxels)
+        labels = aggregate(labels, n_clusters, touching_pairs(self.map, labels), self.min_cluster_voxels,
+                           self.aggregate_in_turn)
         labels = remove_noise(labels, self.map.coords, n_clusters, self.min_cluster_voxels, self.min_density)
         labels, n_clusters = split_groups(labels, n_clusters, self.map.coords, self.map.hits, *self.groups,
                                           self.map.edge)
