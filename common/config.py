@@ -146,7 +146,7 @@ class VoxelConfig:
     epsilon: float = 0.4  # Eq. 1 threshold on normalised colours (measured: 0.25..0.45)
     min_cluster_voxels: int = 20  # smaller clusters are merged into a neighbour or dropped (measured: 4..24)
     min_density: float = 0.02  # voxels / bounding-box volume (in voxels)
-    aggregate_in_turn: bool = False  # Alg. IV-B.2 taken in turn, small pieces adding up (off: voxel.md, session 33)
+    aggregate_in_turn_m: float = 0.0  # nearer than this (m), small pieces add up (Alg. IV-B.2 in turn); 0 = off
     min_points_per_voxel: int = 8  # points a voxel gathered before it is clustered (measured: 2..8)
     keep_frames: int = 0  # 0 = the paper: a voxel without points this frame is removed (1: trails merge objects)
     ground: str = "terrain"  # flat (z > ground_clearance) | terrain (height above local road)

@@ -190,7 +190,7 @@ def test_small_cluster_touching_a_big_one_is_merged() -> None:
 
 
 def test_small_pieces_touching_only_each_other_add_up_to_a_cluster() -> None:
-    """Alg. IV-B.2 taken in turn: coat, trousers and head of 12, 8 and 4 voxels, none joined."""
+    """Alg. IV-B.2 taken in turn: coat, trousers and head, none joined; only where near enough."""
     coat = box((10.05, -0.2, 1.0), (10.3, 0.2, 1.45), RED)
     legs = box((10.05, -0.2, 0.3), (10.3, 0.2, 0.95), BLUE)
     head = box((10.05, -0.1, 1.5), (10.3, 0.1, 1.7), GREEN)
@@ -198,9 +198,10 @@ def test_small_pieces_touching_only_each_other_add_up_to_a_cluster() -> None:
     pieces = mapper(min_cluster_voxels=1, join_share=2.0).process(scene, ego())
     assert len(pieces.clusters) == 3 and sum(c.voxel_count for c in pieces.clusters) >= 20
     assert all(c.voxel_count < 20 for c in pieces.clusters)
-    out = mapper(join_share=2.0, aggregate_in_turn=True).process(scene, ego())
+    out = mapper(join_share=2.0, aggregate_in_turn_m=20.0).process(scene, ego())
     assert [c.voxel_count for c in out.clusters] == [sum(c.voxel_count for c in pieces.clusters)]
     assert mapper(join_share=2.0).process(scene, ego()).clusters == []  # only into a big one: all dropped
+    assert mapper(join_share=2.0, aggregate_in_turn_m=9.0).process(scene, ego()).clusters == []  # he is at 10 m
 
 
 def test_static_box_stays_fixed_in_the_world_while_the_vehicle_moves() -> None:

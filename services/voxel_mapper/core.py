@@ -76,7 +76,7 @@ class VoxelMapper:
                  bridge_voxels: int = 3, points_range_m: float = 0.0, min_points_far: int = 2,
                  join_min_voxels: int = 0, cut_tall_m: float = 0.0, cut_low_m: float = 2.2,
                  cut_min_voxels: int = 12, step_voxels: int = 0, group_dense_share: float = 0.0,
-                 group_min_voxels: int = 40, aggregate_in_turn: bool = False) -> None:
+                 group_min_voxels: int = 40, aggregate_in_turn_m: float = 0.0) -> None:
         if edge <= 0.0:
             raise ConfigError(f"voxel.edge must be > 0, got {edge}")
         self.map = VoxelMap(edge, keep_frames)
@@ -85,7 +85,7 @@ class VoxelMapper:
         self.epsilon = epsilon
         self.min_cluster_voxels = min_cluster_voxels
         self.min_density = min_density
-        self.aggregate_in_turn = aggregate_in_turn
+        self.aggregate_in_turn_m = aggregate_in_turn_m
         self.min_points = min_points_per_voxel
         self.clearance = ground_clearance
         self.join_share = join_share
@@ -116,7 +116,7 @@ class VoxelMapper:
                    join_min_voxels=v.join_min_voxels, cut_tall_m=v.cut_tall_m, cut_low_m=v.cut_low_m,
                    cut_min_voxels=v.cut_min_voxels, step_voxels=v.step_bridge_voxels,
                    group_dense_share=v.group_dense_share, group_min_voxels=v.group_min_voxels,
-                   aggregate_in_turn=v.aggregate_in_turn)
+                   aggregate_in_turn_m=v.aggregate_in_turn_m)
 
     def process(self, cloud: PointCloud, ego: EgoMotion) -> Clusters:
         """Update the map with one frame and cluster the voxels above the road."""
@@ -132,13 +132,25 @@ class VoxelMapper:
         if self.cut[0] > 0.0:
             labels, n_clusters = cut_low_parts(labels, n_clusters, self.map.coords, height, *self.cut)
         labels = aggregate(labels, n_clusters, touching_pairs(self.map, labels), self.min_cluster_voxels,
-                           self.aggregate_in_turn)
+                           self._near(labels, n_clusters, ego.pose))
         labels = remove_noise(labels, self.map.coords, n_clusters, self.min_cluster_voxels, self.min_density)
         labels, n_clusters = split_groups(labels, n_clusters, self.map.coords, self.map.hits, *self.groups,
                                           self.map.edge)
         return Clusters(frame_id=cloud.frame_id, stamp_ns=cloud.stamp_ns, clusters=describe(self.map, labels),
                         voxel_edge=self.map.edge, world_epoch=ego.world_epoch, ego_pose=np.array(ego.pose),
                         voxel_count=self.map.n, view=view_limits(cloud))
+
+    def _near(self, labels: npt.NDArray[np.int32], n_clusters: int, pose: npt.NDArray[np.float64]
+              ) -> npt.NDArray[np.bool_] | None:
+        """Clusters whose mean voxel lies within ``aggregate_in_turn_m`` of the vehicle (x, y); None when off."""
+        if self.aggregate_in_turn_m <= 0.0:
+            return None
+        inside = labels >= 0
+        lab, offset = labels[inside], self.map.centroids[inside, 0:2] - pose[0:2, 3]
+        count = np.maximum(np.bincount(lab, minlength=n_clusters), 1)
+        mean_x = np.bincount(lab, offset[:, 0], minlength=n_clusters) / count
+        mean_y = np.bincount(lab, offset[:, 1], minlength=n_clusters) / count
+        return np.hypot(mean_x, mean_y) < self.aggregate_in_turn_m
 
     @staticmethod
     def _checked(cloud: PointCloud) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:

@@ -7,13 +7,13 @@ touches; what is still small, or sparse (voxels / bounding-box volume in voxels 
 ``min_density``), is noise and dropped (Alg. IV-B.3).
 
 The paper's pseudo-code takes the clusters in turn and aggregates a small one into its biggest
-neighbour whatever that one's size, so pieces that are each small add up (``in_turn``,
-``voxel.aggregate_in_turn``). Measured in session 33 (docs/results/voxel.md): a walker at 17 m
-seen as pieces of 12, 13, 4, 3 and 1 voxels (the noise limit is 20) touches no big cluster and is
-dropped whole (synthetic crossing-s7, frames 34-37); taken in turn his pieces are one cluster,
-and held-out crossing's moving TP rises from 71.8 to 80.8 %. On KITTI tracking 0001 the far
-vegetation's pieces add up too, and the tracker slides along them: 41 moving false positives
-against 3. So it is off until the tracker holds such far pieces still.
+neighbour whatever that one's size, so pieces that are each small add up. ``aggregate`` does
+that for the clusters marked ``in_turn`` (``voxel.aggregate_in_turn_m``: those nearer than that).
+Measured in session 33 (docs/results/voxel.md): a walker at 17 m seen as pieces of 12, 13, 4, 3
+and 1 voxels (the noise limit is 20) touches no big cluster and is dropped whole (synthetic
+crossing-s7, frames 34-37); taken in turn his pieces are one cluster. Everywhere, it gave
+held-out crossing 71.8 -> 80.8 % moving TP but KITTI tracking 0001 41 false moving frames
+against 3: far vegetation's pieces added up and the tracker slid along them. It is off.
 """
 
 from __future__ import annotations
@@ -35,8 +35,12 @@ def _root(parent: npt.NDArray[np.int64], x: int) -> int:
 
 @numba.njit(cache=True)
 def _in_turn(sizes: npt.NDArray[np.int64], starts: npt.NDArray[np.int64], neighbours: npt.NDArray[np.int64],
-             min_voxels: int) -> npt.NDArray[np.int64]:
-    """Alg. IV-B.2 in label order over the contact graph (CSR): each cluster's final label."""
+             min_voxels: int, any_size: npt.NDArray[np.bool_]) -> npt.NDArray[np.int64]:
+    """Alg. IV-B.2 in label order over the contact graph (CSR): each cluster's final label.
+
+    A small cluster joins its biggest neighbour; where ``any_size`` is False only if that one
+    already has ``min_voxels``.
+    """
     n = sizes.shape[0]
     size = sizes.copy()
     parent = np.arange(n)
@@ -49,7 +53,7 @@ def _in_turn(sizes: npt.NDArray[np.int64], starts: npt.NDArray[np.int64], neighb
             q = _root(parent, neighbours[k])
             if q != r and (size[q] > best_size or (size[q] == best_size and q < best)):
                 best, best_size = q, size[q]
-        if best >= 0:
+        if best >= 0 and (any_size[c] or best_size >= min_voxels):
             parent[r] = best
             size[best] += size[r]
     for c in range(n):
@@ -58,20 +62,21 @@ def _in_turn(sizes: npt.NDArray[np.int64], starts: npt.NDArray[np.int64], neighb
 
 
 def aggregate(labels: I32, n_clusters: int, pairs: npt.NDArray[np.int64], min_voxels: int,
-              in_turn: bool = False) -> I32:
+              in_turn: npt.NDArray[np.bool_] | None = None) -> I32:
     """Relabel small clusters with their biggest touching neighbour's label (Alg. IV-B.2).
 
-    ``in_turn``: clusters taken one after the other, a small one joining its biggest neighbour of
-    any size; otherwise only a neighbour already big is joined, all at once.
+    Without ``in_turn`` (n_clusters,) only a neighbour already big is joined, all at once. With
+    it the clusters are taken one after the other, and those it marks join their biggest
+    neighbour of any size.
     """
     if pairs.shape[0] == 0:
         return labels
     sizes = np.bincount(labels[labels >= 0], minlength=n_clusters)
-    if in_turn:
+    if in_turn is not None:
         both = np.concatenate((pairs, pairs[:, ::-1])).astype(np.int64)
         both = both[np.lexsort((both[:, 1], both[:, 0]))]
         starts = np.searchsorted(both[:, 0], np.arange(n_clusters + 1))
-        target = _in_turn(sizes.astype(np.int64), starts, both[:, 1].copy(), min_voxels)
+        target = _in_turn(sizes.astype(np.int64), starts, both[:, 1].copy(), min_voxels, in_turn)
         out = labels.copy()
         assigned = out >= 0
         out[assigned] = target[out[assigned]].astype(out.dtype)
