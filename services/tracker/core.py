@@ -319,8 +319,12 @@ class Tracker:
             return rows, cols
         scale = np.maximum(t.nis[rows], 1.0)[:, None, None]
         nis = kalman.normalised_innovation(t.x[rows], t.p[rows], obs.followed[cols], r[cols] * scale)
-        keep = ~(young & (nis * 3.0 > self.jump_nis))
+        keep = ~(young & self._jumps(nis))
         return rows[keep], cols[keep]
+
+    def _jumps(self, nis: NDArray) -> NDArray:
+        """Which innovations (normalised per dimension, 3 of them) re-anchor rather than correct."""
+        return nis * 3.0 > self.jump_nis
 
     @staticmethod
     def _placement_pose(clusters: Clusters, ego: EgoMotion) -> NDArray:
@@ -363,7 +367,7 @@ class Tracker:
         # a centroid further off than the filter allows is a cluster that changed (split, merge,
         # another face in view), not the object moving: re-anchor the position, keep the velocity
         # but doubt it (docs/results/tracking.md, "Session 33")
-        jump = nis * 3.0 > self.jump_nis
+        jump = self._jumps(nis)
         # a ghost found again metres from where it was predicted may be another object: one seen
         # a few frames, its speed unknown, takes the step as speed, and a window spanning the gap
         # agrees; the window starts again (synthetic urban-s1: a standing walker called moving at 6 m/s)
