@@ -77,28 +77,31 @@ def aggregate(labels: I32, n_clusters: int, pairs: npt.NDArray[np.int64], min_vo
         both = both[np.lexsort((both[:, 1], both[:, 0]))]
         starts = np.searchsorted(both[:, 0], np.arange(n_clusters + 1))
         target = _in_turn(sizes.astype(np.int64), starts, both[:, 1].copy(), min_voxels, in_turn)
-        out = labels.copy()
-        assigned = out >= 0
-        out[assigned] = target[out[assigned]].astype(out.dtype)
-        return out
+    else:
+        target = _into_big(sizes, pairs, min_voxels)
+    out = labels.copy()
+    assigned = out >= 0
+    out[assigned] = target[out[assigned]]
+    return out
+
+
+def _into_big(sizes: npt.NDArray[np.int64], pairs: npt.NDArray[np.int64], min_voxels: int) -> npt.NDArray[np.int64]:
+    """Each cluster's label after joining small ones to their biggest neighbour already big, all at once."""
     a, b = pairs[:, 0], pairs[:, 1]
     # Each contact seen from the small side: (small, neighbour) where the neighbour is big.
     small_a = (sizes[a] < min_voxels) & (sizes[b] >= min_voxels)
     small_b = (sizes[b] < min_voxels) & (sizes[a] >= min_voxels)
     small = np.concatenate((a[small_a], b[small_b]))
     big = np.concatenate((b[small_a], a[small_b]))
+    target = np.arange(len(sizes))
     if small.size == 0:
-        return labels
+        return target
     # For each small cluster keep the neighbour of largest size (ties: the lower label).
     order = np.lexsort((big, -sizes[big], small))
     small, big = small[order], big[order]
     first = np.concatenate(([True], small[1:] != small[:-1]))
-    target = np.arange(n_clusters)
     target[small[first]] = big[first]
-    out = labels.copy()
-    assigned = out >= 0
-    out[assigned] = target[out[assigned]]
-    return out
+    return target
 
 
 def density(coords: npt.NDArray[np.int32], labels: I32, n_clusters: int) -> tuple[npt.NDArray[np.int64], np.ndarray]:
