@@ -11,15 +11,10 @@ The filter follows a cluster's faces turned to the camera (anchor.py), not its c
 slides as more or less of the object comes into view, or its far end where the image's side edge
 cuts its near one; the reported centroid is still the cluster's. A measurement further from the
 prediction than ``jump_nis`` allows is a cluster that changed shape (split, merged, another face
-in view): it re-anchors the position and keeps the velocity, since the step says nothing about
-how the object moves, but doubts it by ``jump_speed_std`` more. The velocity so kept can be stale
-(learnt from a face that slid, then carried on by re-anchoring: on KITTI tracking 0001 static
-structures kept 3-6 m/s for 10-20 frames; on synthetic urban-s8 a track that slid onto a walker
-kept 8-10 m/s against his 1.7 for sixteen frames, re-anchored every second or third), so the
-doubt lets the next clusters set it again, and the moving label also needs the slope of the
-track's last faces to agree (motion_window.py, labelling.py). Optionally (``young_jump_frames``,
-off) a track too young to have a shape of its own is not re-anchored: such a cluster is left to
-start its own track.
+in view): it re-anchors the position and keeps the velocity, doubted (jumps.py). The velocity
+so kept can be stale (learnt from a face that slid, then carried on by re-anchoring: on KITTI
+tracking 0001 static structures kept 3-6 m/s for 10-20 frames), so the moving label also needs
+the slope of the track's last faces to agree (motion_window.py, labelling.py).
 
 Bad input is handled where it arrives and counted in ``counters``: clusters with non-finite
 geometry are dropped (``nan_clusters``); a frame whose id is not newer than the last is ignored
@@ -44,6 +39,7 @@ from common.messages import Cluster, Clusters, EgoMotion, Obstacles
 from services.tracker import kalman, motion_window
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
 from services.tracker.fragments import APART_BY_BOX, Sight, Standing, claims, gather, stand_apart
+from services.tracker.jumps import Jumps
 from services.tracker.labelling import MotionLabeller
 from services.tracker.measurement import cut_covariance, stereo_covariance, view_cut_covariance, visibility_covariance
 from services.tracker.motion_state import SLIDE_SMOOTHING, EgoVelocity, Hysteresis
@@ -116,7 +112,7 @@ class Tracker:
         self.noise_adaptation = noise_adaptation
         self.smoothing = appearance_smoothing
         self.frame_period_s = frame_period_s
-        self.jump_nis = jump_nis
+        self.jumps = Jumps(jump_nis, jump_speed_std**2, young_jump_frames)
         self.fragment_margin = fragment_margin
         self.fragment_gap = fragment_gap
         self.standing = standing
@@ -128,8 +124,6 @@ class Tracker:
         self.side_slice_m = side_slice_m
         self.coasting = coasting
         self.view_margin_m = view_margin_m
-        self.jump_speed_var = jump_speed_std**2
-        self.young_jump_frames = young_jump_frames
         self.upright_accel_std = (
             None if upright_accel_std is None else np.array([upright_accel_std, upright_accel_std, self.accel_std[2]])
         )
@@ -194,7 +188,7 @@ class Tracker:
         pieces = self._gather(clusters, sight)
         obs = self._observe(pieces, pose, clusters.voxel_edge, clusters.view)
         r = self._cluster_cov(obs, pose, clusters.voxel_edge)
-        rows, cols = self._leave_young_jumps(*self._associate(obs, r), obs, r)
+        rows, cols = self._associate(obs, r)
         if trusted:
             self._correct(rows, obs.take(cols), r[cols])
         piece_of = {int(i): pieces[int(obs.index[j])] for i, j in zip(rows, cols, strict=True)}
@@ -296,35 +290,8 @@ class Tracker:
             t.x[:, 0:3] + t.offset, t.rgb, t.hsl, t.extent, t.density,
             obs.centroid, obs.rgb, obs.hsl, obs.extent, obs.density,
         )  # fmt: skip
-        return greedy_pairs(d, self.weights.gate)
-
-    def _leave_young_jumps(
-        self, rows: NDArray, cols: NDArray, obs: Observations, r: NDArray
-    ) -> tuple[NDArray, NDArray]:
-        """Unpair each track younger than ``young_jump_frames`` from a cluster it would re-anchor on.
-
-        Re-anchoring lets a track whose object changed shape keep its identity. A young track has
-        no settled shape: a cluster that far off is more often the next object along the row
-        (synthetic urban-s8's track 25 went wall -> pole -> bin -> walker, each at the range the
-        last had as the vehicle closed in). Left unpaired, the young track misses a frame and the
-        cluster starts its own. The innovation is the prediction's, before ``_correct`` turns a
-        track to another face. Off by default: on KITTI tracking 0001 the clusters so freed started
-        phantom tracks on far structures (docs/results/tracking.md, "Session 33").
-        """
-        if self.young_jump_frames <= 0 or len(rows) == 0:
-            return rows, cols
-        t = self.tracks
-        young = t.age[rows] < self.young_jump_frames
-        if not young.any():
-            return rows, cols
-        scale = np.maximum(t.nis[rows], 1.0)[:, None, None]
-        nis = kalman.normalised_innovation(t.x[rows], t.p[rows], obs.followed[cols], r[cols] * scale)
-        keep = ~(young & self._jumps(nis))
-        return rows[keep], cols[keep]
-
-    def _jumps(self, nis: NDArray) -> NDArray:
-        """Which innovations (normalised per dimension, 3 of them) re-anchor rather than correct."""
-        return nis * 3.0 > self.jump_nis
+        rows, cols = greedy_pairs(d, self.weights.gate)
+        return self.jumps.unpair_young(rows, cols, t, obs.followed, r)
 
     @staticmethod
     def _placement_pose(clusters: Clusters, ego: EgoMotion) -> NDArray:
@@ -365,22 +332,14 @@ class Tracker:
         r = r * np.maximum(t.nis[rows], 1.0)[:, None, None]
         x, p = kalman.update(x_before, p_before, point, r)
         # a centroid further off than the filter allows is a cluster that changed (split, merge,
-        # another face in view), not the object moving: re-anchor the position, keep the velocity
-        # but doubt it (docs/results/tracking.md, "Session 33")
-        jump = self._jumps(nis)
+        # another face in view), not the object moving: re-anchor (jumps.py)
+        jump = self.jumps.of(nis)
         # a ghost found again metres from where it was predicted may be another object: one seen
         # a few frames, its speed unknown, takes the step as speed, and a window spanning the gap
         # agrees; the window starts again (synthetic urban-s1: a standing walker called moving at 6 m/s)
         off = np.linalg.norm((point - x_before[:, 0:3])[:, 0:2], axis=1)
         refound = (t.queue[rows] == GHOST) & (off > self.revive_restart_m) & (self.revive_restart_m > 0.0)
-        x[jump, 0:3] = point[jump]
-        x[jump, 3:6] = x_before[jump, 3:6]
-        p[jump] = p_before[jump]
-        p[jump, 0:3, 0:3] = r[jump]
-        p[jump, 0:3, 3:6] = 0.0
-        p[jump, 3:6, 0:3] = 0.0
-        p[jump, 3, 3] += self.jump_speed_var
-        p[jump, 4, 4] += self.jump_speed_var
+        self.jumps.re_anchor(jump, x, p, x_before, p_before, point, r)
         # and the faces of the old shape say nothing about the new one's motion, even where the
         # filter let a change of extent pass as visibility (a parked car leaving the blob it was
         # merged into); a track already moving keeps its faces, which its label stays on
