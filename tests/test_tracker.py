@@ -14,13 +14,14 @@ from filterpy.kalman import KalmanFilter
 from common.codec import decode, encode
 from common.config import Config
 from common.geometry import make_pose, rot_z
-from common.messages import Cluster, Clusters, EgoMotion, Obstacles
+from common.messages import Cluster, Clusters, EgoMotion, Obstacle, Obstacles
 from services.tracker import Tracker, kalman
 from services.tracker import anchor as anchor_module
 from services.tracker.against import REPO, compare
 from services.tracker.anchor import anchors
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
 from services.tracker.fragments import Sight, Standing, components, footprint, in_contact, merge, near_boxes
+from services.tracker.left_behind import LeftBehind
 from services.tracker.measurement import cut_covariance
 from services.tracker.motion_window import speed_bounds
 
@@ -1139,3 +1140,69 @@ def test_the_benchmark_times_a_revision_beside_this_tree_on_the_same_frames() ->
         assert out["same_output"]
     with pytest.raises(SystemExit, match="no services/tracker"):
         compare("no-such-revision", objects=2, frames=12, repeats=1)
+
+
+# ------------------------------------------------------------------ left behind
+
+
+def footprints_after(pieces_by_frame: list[tuple[list[Cluster], int]], frames: int = 2) -> list[bool]:
+    """Per frame: whether track 7, taking piece ``index`` of that frame's pieces, slid off what it followed."""
+    left = LeftBehind(frames)
+    out = []
+    for pieces, index in pieces_by_frame:
+        rows = np.array([0])
+        out.append(len(left.slid(np.array([7]), rows, {0: pieces[index]}, pieces, np.array([False]))) == 1)
+    return out
+
+
+def test_a_track_whose_old_footprint_another_cluster_holds_slid() -> None:
+    wall = [surface((30.0 + 1.5 * i, 6.0, 0.0), (31.0 + 1.5 * i, 6.5, 0.75), cid=i) for i in range(4)]
+    # the track hops one piece along per frame while every piece stands where it was
+    assert footprints_after([(wall, i) for i in range(4)]) == [False, False, True, True]
+
+
+def test_a_moving_object_leaves_its_footprint_empty_or_covers_it_itself() -> None:
+    moving = [([surface((20.0 + 1.0 * k, 5.0, 0.0), (21.0 + 1.0 * k, 6.0, 1.5))], 0) for k in range(5)]
+    assert not any(footprints_after(moving))
+    long_and_slow = [([surface((20.0 + 0.3 * k, 5.0, 0.0), (24.5 + 0.3 * k, 6.8, 1.5))], 0) for k in range(5)]
+    assert not any(footprints_after(long_and_slow))
+    # beside another cluster that holds none of its old cells
+    beside = [
+        (
+            [
+                surface((20.0 + 1.0 * k, 5.0, 0.0), (21.0 + 1.0 * k, 6.0, 1.5)),
+                surface((20.0, 8.0, 0.0), (30.0, 9.0, 3.0), 1),
+            ],
+            0,
+        )
+        for k in range(5)
+    ]
+    assert not any(footprints_after(beside))
+    # driving under a gantry: the beam above holds the cells over its old footprint, not the footprint
+    gantry = surface((20.0, -5.0, 2.5), (22.0, 8.0, 3.5), 1)
+    under = [([surface((18.0 + 0.6 * k, -1.0, 0.0), (19.8 + 0.6 * k, 1.0, 1.5)), gantry], 0) for k in range(6)]
+    assert not any(footprints_after(under))
+
+
+def object_leaving_a_standing_one(left_behind_frames: int) -> list[Obstacles]:
+    """An object at 10 m/s; from frame 10 on another cluster stands where it was two frames before."""
+    tracker = new_tracker(left_behind_frames=left_behind_frames)
+    out = []
+    for k in range(14):
+        x = 20.0 + 1.0 * k
+        pieces = [surface((x, 5.0, 0.0), (x + 1.0, 6.0, 1.5))]
+        if k >= 10:
+            pieces.append(surface((x - 2.0, 5.0, 0.0), (x - 1.0, 6.0, 1.5), cid=1, rgb=(0.1, 0.5, 0.7)))
+        out.append(step(tracker, k, pieces))
+    return out
+
+
+def test_a_track_that_slid_off_a_standing_object_starts_again_from_rest() -> None:
+    def first(o: Obstacles) -> Obstacle:
+        return min(o.obstacles, key=lambda ob: ob.id)
+
+    with_it, without = object_leaving_a_standing_one(2), object_leaving_a_standing_one(0)
+    assert first(with_it[9]).moving and first(without[9]).moving
+    assert first(with_it[9]).speed == pytest.approx(first(without[9]).speed)  # the same until then
+    assert not first(with_it[10]).moving and first(with_it[10]).speed < 0.5
+    assert first(without[10]).moving and first(without[10]).speed > 8.0
