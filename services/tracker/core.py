@@ -41,7 +41,7 @@ from services.tracker.association import Weights, distance_matrix, greedy_pairs,
 from services.tracker.fragments import APART_BY_BOX, Sight, Standing, claims, gather, stand_apart
 from services.tracker.jumps import Jumps
 from services.tracker.labelling import MotionLabeller
-from services.tracker.left_behind import LeftBehind
+from services.tracker.left_behind import LeftBehind, restart_from_rest
 from services.tracker.measurement import cut_covariance, stereo_covariance, view_cut_covariance, visibility_covariance
 from services.tracker.motion_state import SLIDE_SMOOTHING, EgoVelocity, Hysteresis
 from services.tracker.observations import Observations, observe
@@ -198,7 +198,8 @@ class Tracker:
             self._correct(rows, obs.take(cols), r[cols])
         piece_of = {int(i): pieces[int(obs.index[j])] for i, j in zip(rows, cols, strict=True)}
         if trusted:
-            self._restart_slid(self.left_behind.slid(self.tracks.ids, rows, piece_of, pieces, self.tracks.moving))
+            slid = self.left_behind.slid(self.tracks.ids, rows, piece_of, pieces, self.tracks.moving)
+            self.counters["slid"] += restart_from_rest(self.tracks, slid, self.velocity_var)
         self._advance_queues(rows, elapsed, piece_of, sight)
         fresh = np.ones(len(obs), dtype=bool)
         fresh[cols] = False
@@ -374,19 +375,6 @@ class Tracker:
         t.extent[rows] += a * (obs.extent - t.extent[rows])
         t.extent_slow[rows] += SLIDE_SMOOTHING * (obs.extent - t.extent_slow[rows])
         t.density[rows] += a * (obs.density - t.density[rows])
-
-    def _restart_slid(self, rows: NDArray) -> None:
-        """The tracks that slid off a standing object (left_behind.py) start again from rest."""
-        if len(rows) == 0:
-            return
-        t = self.tracks
-        t.x[rows, 3:5] = 0.0
-        t.p[rows, 3:5, :] = 0.0
-        t.p[rows, :, 3:5] = 0.0
-        t.p[rows, 3, 3], t.p[rows, 4, 4] = self.velocity_var[0], self.velocity_var[1]
-        t.moving[rows] = False
-        motion_window.restart(t.window_n, rows)
-        self.counters["slid"] += len(rows)
 
     def _swallowed(self, rows: NDArray, obs: Observations) -> NDArray:
         """Which tracked rows' clusters outgrow their smoothed extent by over ``merge_growth_m`` (x or y)."""

@@ -37,6 +37,8 @@ import numpy as np
 import numpy.typing as npt
 
 from common.messages import Cluster
+from services.tracker import motion_window
+from services.tracker.track import TrackTable
 
 NDArray = npt.NDArray[Any]
 
@@ -112,3 +114,16 @@ class LeftBehind:
         held = (hi > lo) & ((holder[np.minimum(lo, len(key) - 1)] != mine) | (holder[np.maximum(hi - 1, 0)] != mine))
         share = np.bincount(track, held, minlength=len(checked)) / np.bincount(track, minlength=len(checked))
         return rows[np.asarray(checked)[share > self.share]]
+
+
+def restart_from_rest(t: TrackTable, rows: NDArray, velocity_var: NDArray) -> int:
+    """The tracks ``rows`` start again from rest, with a new track's velocity variance; how many."""
+    if len(rows) == 0:
+        return 0
+    t.x[rows, 3:5] = 0.0
+    t.p[rows, 3:5, :] = 0.0
+    t.p[rows, :, 3:5] = 0.0
+    t.p[rows, 3, 3], t.p[rows, 4, 4] = velocity_var[0], velocity_var[1]
+    t.moving[rows] = False
+    motion_window.restart(t.window_n, rows)
+    return len(rows)
