@@ -24,6 +24,7 @@ from services.tracker.fragments import Sight, Standing, components, footprint, i
 from services.tracker.left_behind import LeftBehind
 from services.tracker.measurement import cut_covariance
 from services.tracker.motion_window import speed_bounds
+from services.tracker.observations import observe
 
 EDGE = 0.25
 PERIOD_NS = 100_000_000
@@ -1151,7 +1152,8 @@ def footprints_after(pieces_by_frame: list[tuple[list[Cluster], int]], frames: i
     out = []
     for pieces, index in pieces_by_frame:
         rows = np.array([0])
-        out.append(len(left.slid(np.array([7]), rows, {0: pieces[index]}, pieces, np.array([False]))) == 1)
+        obs, _ = observe(pieces, np.eye(4), EDGE)
+        out.append(len(left.slid(np.array([7]), rows, np.array([index]), obs, pieces, np.array([False]), EDGE)) == 1)
     return out
 
 

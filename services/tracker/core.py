@@ -198,7 +198,9 @@ class Tracker:
             self._correct(rows, obs.take(cols), r[cols])
         piece_of = {int(i): pieces[int(obs.index[j])] for i, j in zip(rows, cols, strict=True)}
         if trusted:
-            slid = self.left_behind.slid(self.tracks.ids, rows, piece_of, pieces, self.tracks.moving)
+            slid = self.left_behind.slid(
+                self.tracks.ids, rows, cols, obs, pieces, self.tracks.moving, clusters.voxel_edge
+            )
             self.counters["slid"] += restart_from_rest(self.tracks, slid, self.velocity_var)
         self._advance_queues(rows, elapsed, piece_of, sight)
         fresh = np.ones(len(obs), dtype=bool)

@@ -38,6 +38,7 @@ import numpy.typing as npt
 
 from common.messages import Cluster
 from services.tracker import motion_window
+from services.tracker.observations import Observations
 from services.tracker.track import TrackTable
 
 NDArray = npt.NDArray[Any]
@@ -59,61 +60,57 @@ class LeftBehind:
     frames: int  # compare with the footprint this many observations back; 0 = off
     share: float = 0.5  # more of the old footprint than this held by other clusters: the track slid
     cell: int = 2  # grid cell side in voxels
-    _history: dict[int, deque[NDArray]] = field(default_factory=dict)
+    _history: dict[int, deque[tuple[NDArray, NDArray, NDArray]]] = field(default_factory=dict)  # voxels, box
 
     def slid(
-        self, ids: NDArray, rows: NDArray, piece_of: dict[int, Cluster], pieces: list[Cluster], moving: NDArray
+        self,
+        ids: NDArray,
+        rows: NDArray,
+        cols: NDArray,
+        obs: Observations,
+        pieces: list[Cluster],
+        moving: NDArray,
+        edge: float,
     ) -> NDArray:
-        """The rows (of ``rows``, the tracks seen this frame) whose footprint ``frames`` back another piece holds now.
+        """The ``rows`` (tracks seen this frame, each paired with cluster ``cols``) whose footprint
+        ``frames`` sightings back another cluster holds now.
 
-        ``piece_of`` maps a track row to the piece it took, ``pieces`` are all of this frame's,
-        ``moving`` the tracks' labels (by row): a piece a moving track took is no standing object
-        (a walker following another steps where the first was). Every seen track's footprint is
-        remembered for later frames; tracks gone are forgotten.
+        ``obs`` are the clusters (``pieces``) the tracks were paired with, ``moving`` the tracks'
+        labels by row: a cluster a moving track took is no standing object (a walker following
+        another steps where the first was). Every seen track's footprint is remembered for later
+        frames; tracks gone are forgotten. Only the clusters whose boxes reach an old footprint's
+        box (grown by a cell of voxels of ``edge`` m) are looked at voxel by voxel.
         """
         if self.frames <= 0:
             return rows[:0]
-        alive = {int(i) for i in ids}
+        alive = set(ids.tolist())
         for gone in [i for i in self._history if i not in alive]:
             del self._history[gone]
-        if len(rows) == 0:
-            return rows
-        index = {id(p): k for k, p in enumerate(pieces)}
-        own = np.array([index[id(piece_of[int(r)])] for r in rows], dtype=np.int64)
-        # every cell a standing piece holds, sorted by cell and then by piece
-        walking = np.zeros(len(pieces), dtype=bool)
-        walking[own[moving[rows]]] = True
-        sizes = np.array([len(p.voxels) for p in pieces], dtype=np.int64)
-        owner = np.repeat(np.arange(len(pieces)), sizes)
-        voxels = np.concatenate([np.asarray(p.voxels).reshape(-1, 3) for p in pieces]) if pieces else np.zeros((0, 3))
-        standing = ~walking[owner]
-        key, holder = cells(voxels[standing], self.cell), owner[standing]
-        order = np.lexsort((holder, key))
-        key, holder = key[order], holder[order]
-        # each checked track's footprint ``frames`` sightings back, one entry per cell
+        index, lo, hi = obs.index.tolist(), obs.bbox_min, obs.bbox_max
         checked, old = [], []
-        for k, row in enumerate(rows):
-            past = self._history.setdefault(int(ids[row]), deque(maxlen=self.frames))
-            if len(past) == self.frames and len(past[0]):
+        for k, (track, col) in enumerate(zip(ids[rows].tolist(), cols.tolist(), strict=True)):
+            past = self._history.get(track)
+            if past is None:
+                past = self._history[track] = deque(maxlen=self.frames)
+            elif len(past) == self.frames and len(past[0][0]):
                 checked.append(k)
                 old.append(past[0])
-            past.append(np.asarray(piece_of[int(row)].voxels).reshape(-1, 3))
-        if not checked or len(key) == 0:
+            past.append((pieces[index[col]].voxels, lo[col], hi[col]))
+        if not checked:
             return rows[:0]
-        track = np.repeat(np.arange(len(checked)), [len(o) for o in old])
-        cell = cells(np.concatenate(old), self.cell)
-        first = np.lexsort((cell, track))
-        track, cell = track[first], cell[first]
-        unique = np.ones(len(cell), dtype=bool)
-        unique[1:] = (cell[1:] != cell[:-1]) | (track[1:] != track[:-1])
-        track, cell = track[unique], cell[unique]
-        # a cell counts if a standing piece but the track's own holds it: within the cell's
-        # entries (sorted by piece) the first or the last is another piece
-        lo, hi = np.searchsorted(key, cell, "left"), np.searchsorted(key, cell, "right")
-        mine = own[np.asarray(checked)][track]
-        held = (hi > lo) & ((holder[np.minimum(lo, len(key) - 1)] != mine) | (holder[np.maximum(hi - 1, 0)] != mine))
-        share = np.bincount(track, held, minlength=len(checked)) / np.bincount(track, minlength=len(checked))
-        return rows[np.asarray(checked)[share > self.share]]
+        standing = np.ones(len(index), dtype=bool)
+        standing[cols[moving[rows]]] = False
+        grow = self.cell * edge
+        old_lo = np.array([o[1] for o in old])[:, None] - grow
+        old_hi = np.array([o[2] for o in old])[:, None] + grow
+        near = ((lo[None] <= old_hi) & (hi[None] >= old_lo)).all(axis=2) & standing[None]
+        near[np.arange(len(checked)), cols[checked]] = False
+        out = []
+        for j in np.flatnonzero(near.any(axis=1)):
+            theirs = np.concatenate([cells(pieces[index[q]].voxels, self.cell) for q in np.flatnonzero(near[j])])
+            if np.isin(np.unique(cells(old[j][0], self.cell)), theirs).mean() > self.share:
+                out.append(rows[checked[j]])
+        return np.asarray(out, dtype=rows.dtype)
 
 
 def restart_from_rest(t: TrackTable, rows: NDArray, velocity_var: NDArray) -> int:
