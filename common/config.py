@@ -212,9 +212,7 @@ class TrackerConfig:
     frame_period_s: float = 0.1  # time step when stamps cannot give one
     jump_nis: float = 7.8  # innovation (squared Mahalanobis, 3 dof; 7.8 = chi2 95 %) that re-anchors, not corrects
     jump_speed_std: float = 3.0  # ... and doubts the velocity it keeps by this much more (m/s, horizontal); 0 = not
-    left_behind_frames: int = (
-        0  # a track whose footprint this many sightings back other clusters hold now slid; 0 = off
-    )
+    left_behind_frames: int = 3  # a track whose footprint this many frames back others now hold slid; 0 = off
     left_behind_share: float = 0.5  # ... if they hold more than this share of it: it starts again from rest
     young_jump_frames: int = 0  # ... a track younger than this (frames) is not paired with such a cluster; 0 = off
     fragment_margin: float = 0.25  # clusters in a known track's predicted box grown by this (m) merge; < 0: off

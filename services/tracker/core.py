@@ -15,6 +15,9 @@ in view): it re-anchors the position and keeps the velocity, doubted (jumps.py).
 so kept can be stale (learnt from a face that slid, then carried on by re-anchoring: on KITTI
 tracking 0001 static structures kept 3-6 m/s for 10-20 frames), so the moving label also needs
 the slope of the track's last faces to agree (motion_window.py, labelling.py).
+A track whose footprint a few frames back another, standing cluster now holds has slid off what
+it followed (hopping along a row of far pieces, each hop within the range noise) and starts
+again from rest (left_behind.py).
 
 Bad input is handled where it arrives and counted in ``counters``: clusters with non-finite
 geometry are dropped (``nan_clusters``); a frame whose id is not newer than the last is ignored

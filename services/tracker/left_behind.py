@@ -16,15 +16,16 @@ Such a track's velocity is the slide's: it starts again from rest with a new tra
 its faces' window starts again. Footprints are compared on a grid of ``cell`` voxels, so the
 range jitter of a far object's voxels does not hide that it is still there, and in three
 dimensions: a car driving under a gantry leaves its footprint on the road, not under the beam
-(in two, hanging's held-out TP fell 78.1 -> 75.2 %). A piece a moving track took is no standing
+(in two, hanging's held-out TP fell 78.1 -> 75.2 %). A cluster a moving track took is no standing
 object: a walker following another steps where the first was.
 
 With ``frames`` 3 (tracker replays, docs/results/tracking.md, "Session 34"): KITTI tracking 0001's
 false moving frames 3 -> 0, held-out FP lower on every scenario (urban 3.4 -> 2.7 %, hanging 4.1
--> 2.8 %, slope 3.0 -> 2.0 %), overtake and hanging TP up a point, urban and crossing TP down half
-a point, but the tuning seeds' crossing TP 65.5 -> 61.5 %, and the tracker 1.33 times slower per
-frame with 50 obstacles (session 31's 1.55 ms would be about 2.1, over the 2 ms goal). Off by
-default until it is cheaper.
+-> 2.8 %, slope 3.0 -> 2.0 %), overtake, hanging and slope TP up a point, urban and crossing TP
+down half a point; the tuning seeds' crossing TP 65.5 -> 62.1 % (a walker leaving the one he
+waited beside). Only the clusters whose boxes reach an old footprint's are looked at voxel by
+voxel, in a compiled pass over a small grid: the tracker takes 1.09 times as long per frame with
+50 obstacles (`python -m services.tracker.benchmark --against 593db69`).
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -43,24 +45,74 @@ from services.tracker.track import TrackTable
 
 NDArray = npt.NDArray[Any]
 
-#: grid cell indices are packed in one int64, 21 bits an axis, offset to stay positive
-_BITS, _OFFSET = 21, 1 << 20
+
+@numba.njit(cache=True)
+def _held_shares(
+    old: NDArray, old_start: NDArray, theirs: NDArray, their_start: NDArray, slot: NDArray, cell: int
+) -> NDArray:
+    """Per checked track, the share of its old footprint's cells that its pairs' voxels fall in.
+
+    ``old`` holds the tracks' old voxels one after the other (``old_start`` offsets), ``theirs``
+    the paired clusters' (``their_start``), ``slot`` each pair's track. Each footprint is marked
+    on a small dense grid over its own box: the work is one pass over the voxels.
+    """
+    n = len(old_start) - 1
+    out = np.zeros(n)
+    pair = 0
+    for k in range(n):
+        a, b = old_start[k], old_start[k + 1]
+        if a == b:
+            while pair < len(slot) and slot[pair] == k:
+                pair += 1
+            continue
+        lo = np.empty(3, np.int64)
+        hi = np.empty(3, np.int64)
+        for d in range(3):
+            lo[d] = old[a, d] // cell
+            hi[d] = lo[d]
+        for i in range(a, b):
+            for d in range(3):
+                c = old[i, d] // cell
+                lo[d] = min(lo[d], c)
+                hi[d] = max(hi[d], c)
+        grid = np.zeros((hi[0] - lo[0] + 1, hi[1] - lo[1] + 1, hi[2] - lo[2] + 1), np.int8)
+        for i in range(a, b):
+            grid[old[i, 0] // cell - lo[0], old[i, 1] // cell - lo[1], old[i, 2] // cell - lo[2]] = 1
+        cells = 0
+        for v in grid.ravel():
+            cells += v
+        held = 0
+        while pair < len(slot) and slot[pair] == k:
+            for i in range(their_start[pair], their_start[pair + 1]):
+                x = theirs[i, 0] // cell - lo[0]
+                y = theirs[i, 1] // cell - lo[1]
+                z = theirs[i, 2] // cell - lo[2]
+                if 0 <= x < grid.shape[0] and 0 <= y < grid.shape[1] and 0 <= z < grid.shape[2] and grid[x, y, z] == 1:
+                    grid[x, y, z] = 2
+                    held += 1
+            pair += 1
+        out[k] = held / cells
+    return out
 
 
-def cells(voxels: NDArray, cell: int) -> NDArray:
-    """The key of the grid cell each voxel (n, 3) falls in."""
-    c = np.floor_divide(np.asarray(voxels, dtype=np.int64).reshape(-1, 3), cell) + _OFFSET
-    return (c[:, 0] << (2 * _BITS)) | (c[:, 1] << _BITS) | c[:, 2]
+@dataclass(frozen=True)
+class _Seen:
+    """One frame's sightings: which tracks took which clusters, and those clusters."""
+
+    ids: NDArray  # (m,) track ids, sorted
+    voxels: list[NDArray]  # (m,) the voxels of the cluster each took
+    lo: NDArray  # (m, 3) its box
+    hi: NDArray
 
 
 @dataclass
 class LeftBehind:
-    """Each track's last footprints, and which tracks left theirs to others (config: ``tracker.left_behind_*``)."""
+    """The last frames' sightings; which tracks left their footprint to others (config: ``tracker.left_behind_*``)."""
 
-    frames: int  # compare with the footprint this many observations back; 0 = off
+    frames: int  # compare with the footprint this many frames back (trusted ones); 0 = off
     share: float = 0.5  # more of the old footprint than this held by other clusters: the track slid
     cell: int = 2  # grid cell side in voxels
-    _history: dict[int, deque[tuple[NDArray, NDArray, NDArray]]] = field(default_factory=dict)  # voxels, box
+    _seen: deque[_Seen] = field(default_factory=deque)
 
     def slid(
         self,
@@ -73,44 +125,61 @@ class LeftBehind:
         edge: float,
     ) -> NDArray:
         """The ``rows`` (tracks seen this frame, each paired with cluster ``cols``) whose footprint
-        ``frames`` sightings back another cluster holds now.
+        ``frames`` frames back, if they were seen then, another cluster holds now.
 
         ``obs`` are the clusters (``pieces``) the tracks were paired with, ``moving`` the tracks'
         labels by row: a cluster a moving track took is no standing object (a walker following
-        another steps where the first was). Every seen track's footprint is remembered for later
-        frames; tracks gone are forgotten. Only the clusters whose boxes reach an old footprint's
+        another steps where the first was). Only the clusters whose boxes reach an old footprint's
         box (grown by a cell of voxels of ``edge`` m) are looked at voxel by voxel.
         """
         if self.frames <= 0:
             return rows[:0]
-        alive = set(ids.tolist())
-        for gone in [i for i in self._history if i not in alive]:
-            del self._history[gone]
-        index, lo, hi = obs.index.tolist(), obs.bbox_min, obs.bbox_max
-        checked, old = [], []
-        for k, (track, col) in enumerate(zip(ids[rows].tolist(), cols.tolist(), strict=True)):
-            past = self._history.get(track)
-            if past is None:
-                past = self._history[track] = deque(maxlen=self.frames)
-            elif len(past) == self.frames and len(past[0][0]):
-                checked.append(k)
-                old.append(past[0])
-            past.append((pieces[index[col]].voxels, lo[col], hi[col]))
-        if not checked:
+        index = obs.index.tolist()
+        order = np.argsort(ids[rows], kind="stable")
+        seen = _Seen(
+            ids[rows][order],
+            [pieces[index[c]].voxels for c in cols[order].tolist()],
+            obs.bbox_min[cols[order]],
+            obs.bbox_max[cols[order]],
+        )
+        self._seen.append(seen)
+        if len(self._seen) <= self.frames:
             return rows[:0]
+        then = self._seen.popleft()
+        at = np.minimum(np.searchsorted(then.ids, ids[rows]), max(len(then.ids) - 1, 0))
+        found = np.flatnonzero((then.ids[at] == ids[rows]) if len(then.ids) else np.zeros(len(rows), dtype=bool))
+        if len(found) == 0:
+            return rows[:0]
+        past = at[found]
         standing = np.ones(len(index), dtype=bool)
         standing[cols[moving[rows]]] = False
         grow = self.cell * edge
-        old_lo = np.array([o[1] for o in old])[:, None] - grow
-        old_hi = np.array([o[2] for o in old])[:, None] + grow
-        near = ((lo[None] <= old_hi) & (hi[None] >= old_lo)).all(axis=2) & standing[None]
-        near[np.arange(len(checked)), cols[checked]] = False
-        out = []
-        for j in np.flatnonzero(near.any(axis=1)):
-            theirs = np.concatenate([cells(pieces[index[q]].voxels, self.cell) for q in np.flatnonzero(near[j])])
-            if np.isin(np.unique(cells(old[j][0], self.cell)), theirs).mean() > self.share:
-                out.append(rows[checked[j]])
-        return np.asarray(out, dtype=rows.dtype)
+        # boxes overlapping in x and y (a superset of those holding a cell of the footprint)
+        lo, hi = obs.bbox_min, obs.bbox_max
+        then_lo, then_hi = then.lo[past] - grow, then.hi[past] + grow
+        near = standing[None] & (lo[None, :, 0] <= then_hi[:, None, 0]) & (hi[None, :, 0] >= then_lo[:, None, 0])
+        near &= (lo[None, :, 1] <= then_hi[:, None, 1]) & (hi[None, :, 1] >= then_lo[:, None, 1])
+        near[np.arange(len(found)), cols[found]] = False
+        pairs = np.argwhere(near)  # (checked track, cluster) pairs to look at voxel by voxel
+        if len(pairs) == 0:
+            return rows[:0]
+        checked = np.unique(pairs[:, 0])
+        olds = [np.asarray(then.voxels[past[j]], dtype=np.int64).reshape(-1, 3) for j in checked.tolist()]
+        theirs = [np.asarray(pieces[index[q]].voxels, dtype=np.int64).reshape(-1, 3) for q in pairs[:, 1].tolist()]
+        old_start = np.cumsum([0] + [len(o) for o in olds])
+        their_start = np.cumsum([0] + [len(t) for t in theirs])
+        slot = np.searchsorted(checked, pairs[:, 0])  # each pair's checked track, 0..len(checked)
+        held = _held_shares(
+            np.concatenate(olds) if olds else np.zeros((0, 3), np.int64),
+            old_start,
+            np.concatenate(theirs) if theirs else np.zeros((0, 3), np.int64),
+            their_start,
+            slot,
+            self.cell,
+        )
+        share = np.zeros(len(found))
+        share[checked] = held
+        return rows[found[share > self.share]]
 
 
 def restart_from_rest(t: TrackTable, rows: NDArray, velocity_var: NDArray) -> int:
