@@ -19,15 +19,15 @@ A track whose footprint a few frames back another, standing cluster now holds ha
 it followed (hopping along a row of far pieces, each hop within the range noise) and starts
 again from rest (left_behind.py).
 
-Bad input is handled where it arrives and counted in ``counters``: clusters with non-finite
-geometry are dropped (``nan_clusters``); a frame whose id is not newer than the last is ignored
-and answered with the current tracks unchanged (``stale_frames``); a gap in frame ids is
-predicted through with the stamp difference (``gaps``, ``gap_frames``), falling back to the
-nominal period when stamps do not advance (``bad_stamps``); a new ``world_epoch`` restarts every
-track (``epoch_resets``). When the egomotion is flagged invalid (``ego_invalid``) the clusters
-were placed in the world with a pose the odometry does not vouch for: tracks are predicted and
-still associated (so they stay alive and keep their identity), but the filter is not corrected
-and the moving labels are held until a valid frame.
+Bad input is handled where it arrives and counted in ``counters`` (the frame guards are in
+clock.py): clusters with non-finite geometry are dropped (``nan_clusters``); a frame whose id is
+not newer than the last is ignored and answered with the current tracks unchanged
+(``stale_frames``); a gap in frame ids is predicted through with the stamp difference (``gaps``,
+``gap_frames``), falling back to the nominal period when stamps do not advance (``bad_stamps``);
+a new ``world_epoch`` restarts every track (``epoch_resets``). When the egomotion is flagged
+invalid (``ego_invalid``) the clusters were placed in the world with a pose the odometry does not
+vouch for: tracks are predicted and still associated (so they stay alive and keep their
+identity), but the filter is not corrected and the moving labels are held until a valid frame.
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ from common.config import Config, VolumeConfig
 from common.messages import Cluster, Clusters, EgoMotion, Obstacles
 from services.tracker import kalman, motion_window
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
+from services.tracker.clock import FrameClock
 from services.tracker.fragments import APART_BY_BOX, Sight, Standing, claims, gather, stand_apart
 from services.tracker.jumps import Jumps
 from services.tracker.labelling import MotionLabeller
@@ -117,7 +118,6 @@ class Tracker:
         self.volume = volume
         self.noise_adaptation = noise_adaptation
         self.smoothing = appearance_smoothing
-        self.frame_period_s = frame_period_s
         self.jumps = Jumps(jump_nis, jump_speed_std**2, young_jump_frames)
         self.left_behind = left_behind or LeftBehind(0)
         self.fragment_margin = fragment_margin
@@ -140,9 +140,7 @@ class Tracker:
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.tracks = TrackTable()
         self.ego = EgoVelocity()
-        self._epoch: int | None = None
-        self._last_frame: int | None = None
-        self._last_stamp_ns = 0
+        self.clock = FrameClock(frame_period_s, self.counters)
         self._next_id = 1
         self._clock = 0.0  # seconds of input processed: the time axis of the speed windows
 
@@ -185,9 +183,12 @@ class Tracker:
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
         """One frame of clusters (world frame) and its egomotion -> every track as an obstacle."""
-        if self._is_stale(clusters):
+        stale, new_world = self.clock.stale(clusters)
+        if new_world:
+            self.tracks = TrackTable()
+        if stale:
             return obstacles_of(self.tracks, self.ego.velocity, clusters, ego)
-        dt, elapsed = self._time_step(clusters)
+        dt, elapsed = self.clock.step(clusters)
         self._clock += dt
         trusted = self._observe_ego(ego)
         pose = self._placement_pose(clusters, ego)
@@ -213,40 +214,7 @@ class Tracker:
             self.tracks.moving = self.labeller.label(self.tracks, clusters.voxel_edge, pose[0:2, 3])
         return obstacles_of(self.tracks, self.ego.velocity, clusters, ego)
 
-    # ------------------------------------------------------------------ input guards
-
-    def _is_stale(self, clusters: Clusters) -> bool:
-        """Old epoch or old frame: ignore. A newer epoch restarts the world and its tracks."""
-        epoch = clusters.world_epoch
-        if self._epoch is not None and epoch < self._epoch:
-            self.counters["stale_frames"] += 1
-            return True
-        if self._epoch is not None and epoch > self._epoch:
-            self.counters["epoch_resets"] += 1
-            self.tracks = TrackTable()
-            self._last_frame = None
-        self._epoch = epoch
-        if self._last_frame is not None and clusters.frame_id <= self._last_frame:
-            self.counters["stale_frames"] += 1
-            return True
-        return False
-
-    def _time_step(self, clusters: Clusters) -> tuple[float, int]:
-        """Seconds and frames since the previous processed frame."""
-        self.counters["frames"] += 1
-        if self._last_frame is None:
-            dt, elapsed = self.frame_period_s, 1
-        else:
-            elapsed = clusters.frame_id - self._last_frame
-            if elapsed > 1:
-                self.counters["gaps"] += 1
-                self.counters["gap_frames"] += elapsed - 1
-            dt = (clusters.stamp_ns - self._last_stamp_ns) * 1e-9
-            if not dt > 0.0:
-                self.counters["bad_stamps"] += 1
-                dt = elapsed * self.frame_period_s
-        self._last_frame, self._last_stamp_ns = clusters.frame_id, clusters.stamp_ns
-        return dt, elapsed
+    # ------------------------------------------------------------------ input
 
     def _observe_ego(self, ego: EgoMotion) -> bool:
         """Update the vehicle's velocity; whether this frame's world placement can be trusted."""
