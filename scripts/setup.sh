@@ -13,8 +13,9 @@ fi
 .venv/bin/python -m pip install --quiet --upgrade pip >/dev/null
 .venv/bin/python -m pip install --quiet -c constraints.txt -e ".[dev]"
 # compile the numba kernels (voxel map, flood fill, tracker) once into the source tree's cache, so
-# that no service stalls for its first frame: 30 s cold on a 2-core machine, 3 s once cached
-echo "setup: compiling the numba kernels on 3 frames of the bundled recording (once)" >&2
+# that no service stalls for its first frame: 30 s cold on a 2-core machine, 3 s once cached; six
+# frames, since the tracker's left-behind test (services/tracker/left_behind.py) first looks three back
+echo "setup: compiling the numba kernels on 6 frames of the bundled recording (once)" >&2
 warm=$(mktemp -d)
-.venv/bin/stereovox process recordings/urban.mcap --out "$warm/warm.mcap" --max-frames 3 >/dev/null
+.venv/bin/stereovox process recordings/urban.mcap --out "$warm/warm.mcap" --max-frames 6 >/dev/null
 rm -rf "$warm"

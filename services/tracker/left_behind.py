@@ -169,14 +169,7 @@ class LeftBehind:
         old_start = np.cumsum([0] + [len(o) for o in olds])
         their_start = np.cumsum([0] + [len(t) for t in theirs])
         slot = np.searchsorted(checked, pairs[:, 0])  # each pair's checked track, 0..len(checked)
-        held = _held_shares(
-            np.concatenate(olds) if olds else np.zeros((0, 3), np.int64),
-            old_start,
-            np.concatenate(theirs) if theirs else np.zeros((0, 3), np.int64),
-            their_start,
-            slot,
-            self.cell,
-        )
+        held = _held_shares(np.concatenate(olds), old_start, np.concatenate(theirs), their_start, slot, self.cell)
         share = np.zeros(len(found))
         share[checked] = held
         return rows[found[share > self.share]]
