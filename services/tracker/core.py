@@ -140,7 +140,7 @@ class Tracker:
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.tracks = TrackTable()
         self.ego = EgoVelocity()
-        self.clock = FrameClock(frame_period_s, self.counters)
+        self.guard = FrameClock(frame_period_s, self.counters)  # which frames are taken (clock.py)
         self._next_id = 1
         self._clock = 0.0  # seconds of input processed: the time axis of the speed windows
 
@@ -183,12 +183,12 @@ class Tracker:
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
         """One frame of clusters (world frame) and its egomotion -> every track as an obstacle."""
-        stale, new_world = self.clock.stale(clusters)
+        stale, new_world = self.guard.stale(clusters)
         if new_world:
             self.tracks = TrackTable()
         if stale:
             return obstacles_of(self.tracks, self.ego.velocity, clusters, ego)
-        dt, elapsed = self.clock.step(clusters)
+        dt, elapsed = self.guard.step(clusters)
         self._clock += dt
         trusted = self._observe_ego(ego)
         pose = self._placement_pose(clusters, ego)
