@@ -3,7 +3,7 @@
 The filter's bound is its speed less some of its own doubt (motion_state.label); the faces' bound
 is the slope of the track's last faces less their scatter (motion_window.py). A track turns
 moving only when both clear the threshold, so a velocity the filter learnt from a face that slid
-is not believed until the faces move too. Three refinements, each measured on tracker replays
+is not believed until the faces move too. Four refinements, each measured on tracker replays
 (docs/results/tracking.md):
 
 - a narrow track (a walker, a cyclist, a pole) may be labelled by its motion across the line of
@@ -11,7 +11,9 @@ is not believed until the faces move too. Three refinements, each measured on tr
 - an upright track's filter doubts its speed about twice as much as its faces scatter, so it
   needs fewer of those sigmas ("Session 20");
 - a compact upright track is confirmed by its near face alone: its far end is the far fringe of
-  its smear, which swings by metres from frame to frame ("Session 21").
+  its smear, which swings by metres from frame to frame ("Session 21");
+- a narrow track's box growing along the line of sight does not count as slide: that growth is
+  the smear's fringe, and the point followed is its points' median range ("Session 35").
 """
 
 from __future__ import annotations
@@ -53,6 +55,9 @@ class MotionLabeller:
                 t.x[:, 0:2], t.x[:, 3:5], t.p[:, 3:5, 3:5], extent, t.extent_slow, eye, self.frame_period_s, voxel_edge
             )
             confirm, across_confirm = self.window_bounds(t, k, a.normal)
+            # a narrow track is followed at its points' median range (anchor.py), which the fringe
+            # its box grows by along the line of sight hardly moves: only growth across it slides it
+            slide = np.where(a.width < self.narrow_across_m, a.slide, slide)
             evidence = np.minimum(speed - k * sigma - slide, confirm)
             across_evidence = np.minimum(a.speed - k * a.sigma - a.slide, across_confirm)
             use = (a.width < self.narrow_across_m) & (across_evidence > evidence)
