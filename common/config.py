@@ -223,7 +223,7 @@ class TrackerConfig:
     upright_sigma_k: float = 0.75  # ... and an upright track turns moving at this many speed sigmas, not moving_sigma_k
     upright_near_only_m: float = 4.0  # ... and if no longer (m, x and y), its near face alone confirms it; 0: off
     reshape_m: float = 3.0  # box grown or shrunk by more (m, x or y): a not-yet-moving track's speed window restarts
-    narrow_across_m: float = 2.0  # narrower across its line of sight (m): labelled by its speed across if surer; 0 = off
+    narrow_across_m: float = 2.0  # narrower across its line of sight (m): labelled by its speed across if surer; 0: off
     # ... and only its growth across the line of sight counts as slide (labelling.py)
     revive_restart_m: float = 1.0  # a ghost found this far (m) from its prediction restarts its speed window; 0: off
     merge_growth_m: float = 2.0  # cluster wider by more (m, x or y) than its track's smoothed extent: box kept; 0: off
