@@ -728,7 +728,7 @@ def test_an_upright_track_is_called_moving_at_fewer_sigmas_and_a_post_still_is_n
     assert upright >= 10 and upright > 2 * car  # 15 and 6 of 25 frames
 
 
-def walker_with_a_growing_fringe(k: int, x0: float, speed: float) -> Cluster:
+def walker_trailing_a_fringe(k: int, x0: float, speed: float) -> Cluster:
     """A walker at ``x0 + speed * t`` along the line of sight, trailed by a fringe of stray voxels
     that swings between 0.25 and 3 m long behind him: dense points on the walker, one per fringe voxel."""
     x = x0 + speed * 0.1 * k
@@ -741,7 +741,7 @@ def walker_with_a_growing_fringe(k: int, x0: float, speed: float) -> Cluster:
     return Cluster(**{**vars(c), "voxel_points": points})
 
 
-def test_a_narrow_walker_trailing_a_growing_fringe_is_moving_and_a_post_with_one_is_not() -> None:
+def test_a_narrow_walker_trailing_a_swinging_fringe_is_moving_and_a_post_with_one_is_not() -> None:
     # his box swings by up to 2.75 m along the line of sight, which would drag a near face; he is
     # followed at his points' median range, which the fringe's few points hardly move, so only
     # growth across the line of sight is taken as slide for a narrow track
@@ -749,7 +749,7 @@ def test_a_narrow_walker_trailing_a_growing_fringe_is_moving_and_a_post_with_one
     for name, speed in (("walker", 1.4), ("post", 0.0)):
         tracker = new_tracker()
         labels[name] = [
-            any(o.moving for o in step(tracker, k, [walker_with_a_growing_fringe(k, 15.0, speed)]).obstacles)
+            any(o.moving for o in step(tracker, k, [walker_trailing_a_fringe(k, 15.0, speed)]).obstacles)
             for k in range(25)
         ]
     assert not any(labels["post"]), labels["post"]
