@@ -734,8 +734,7 @@ def walker_trailing_a_fringe(k: int, x0: float, speed: float) -> Cluster:
     x = x0 + speed * 0.1 * k
     core = box_voxels((x, -0.25, 0.0), (x + 0.5, 0.25, 1.75))
     length = 0.25 + 2.75 * abs(np.sin(0.5 * k))
-    fringe = box_voxels((x + 0.5, -0.25, 0.5), (x + 0.5 + length, 0.25, 1.0))
-    fringe = fringe[~(fringe[:, None, :] == core[None, :, :]).all(axis=2).any(axis=1)]
+    fringe = box_voxels((x + 0.75, -0.25, 0.5), (x + 0.75 + length, 0.25, 1.0))  # from the voxel after his
     c = of_voxels(np.concatenate([core, fringe]).astype(np.int32), rgb=(0.2, 0.6, 0.2))
     points = np.concatenate([np.full(len(core), 20, np.int32), np.ones(len(fringe), np.int32)])
     return Cluster(**{**vars(c), "voxel_points": points})

@@ -55,12 +55,13 @@ class MotionLabeller:
                 t.x[:, 0:2], t.x[:, 3:5], t.p[:, 3:5, 3:5], extent, t.extent_slow, eye, self.frame_period_s, voxel_edge
             )
             confirm, across_confirm = self.window_bounds(t, k, a.normal)
+            narrow = a.width < self.narrow_across_m
             # a narrow track is followed at its points' median range (anchor.py), which the fringe
             # its box grows by along the line of sight hardly moves: only growth across it slides it
-            slide = np.where(a.width < self.narrow_across_m, a.slide, slide)
+            slide = np.where(narrow, a.slide, slide)
             evidence = np.minimum(speed - k * sigma - slide, confirm)
             across_evidence = np.minimum(a.speed - k * a.sigma - a.slide, across_confirm)
-            use = (a.width < self.narrow_across_m) & (across_evidence > evidence)
+            use = narrow & (across_evidence > evidence)
             speed, sigma, slide = (
                 np.where(use, a.speed, speed),
                 np.where(use, a.sigma, sigma),
