@@ -144,6 +144,7 @@ class VoxelConfig:
 
     edge: float = 0.25
     epsilon: float = 0.4  # Eq. 1 threshold on normalised colours (measured: 0.25..0.45)
+    circular_hue: bool = False  # hue as an angle (chroma-weighted mean, short way round); off: as a number
     min_cluster_voxels: int = 20  # smaller clusters are merged into a neighbour or dropped (measured: 4..24)
     min_density: float = 0.02  # voxels / bounding-box volume (in voxels)
     aggregate_in_turn_m: float = 0.0  # nearer than this (m), small pieces add up (Alg. IV-B.2 in turn); 0 = off

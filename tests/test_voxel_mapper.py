@@ -101,6 +101,26 @@ def test_touching_boxes_of_one_colour_are_one_cluster() -> None:
     assert np.all(c.color_var_rgb >= 0) and np.all(c.color_var_rgb < 0.01)
 
 
+def test_reds_either_side_of_hue_zero_are_one_colour_with_circular_hue() -> None:
+    # Hue 0.02 and 0.98 are both red: read as numbers they differ by nearly the whole circle.
+    warm, cool = box((6, -1, 0), (8, 1, 1.5), (200, 50, 20)), box((8, -1, 0), (10, 1, 1.5), (200, 20, 50), seed=5)
+    plain = mapper(join_share=2.0).process(cloud(road(), warm, cool), ego()).clusters  # the paper's reading
+    assert len(plain) >= 2  # (and the voxels where they meet average to a cyan of their own)
+    out = mapper(join_share=2.0, circular_hue=True).process(cloud(road(), warm, cool), ego())
+    assert len(out.clusters) == 1
+    hue, spread = out.clusters[0].color_mean_hsl[0], out.clusters[0].color_var_hsl[0]
+    assert min(hue, 1.0 - hue) < 0.02  # red, not the cyan a plain mean of 0.02 and 0.98 gives
+    assert spread < 0.05
+
+
+def test_a_grey_wall_has_no_hue_to_split_it_with_circular_hue() -> None:
+    # Noise of a few grey levels gives each point of a grey an arbitrary hue.
+    wall = box((8, -4, 0), (8.5, 4, 2.5), (108, 108, 108), seed=7)
+    out = mapper(join_share=2.0, circular_hue=True).process(cloud(road(), wall), ego())
+    assert len(out.clusters) == 1
+    assert out.clusters[0].color_var_hsl[0] > 0.5  # the hues cancel out: a spread, not a colour
+
+
 def test_a_car_of_paint_and_glass_is_one_cluster() -> None:
     body, cabin = box((6, -0.9, 0.25), (10.3, 0.9, 0.9), RED), box((7.0, -0.8, 0.95), (9.4, 0.8, 1.45), GLASS)
     assert len(mapper(join_share=2.0).process(cloud(road(), body, cabin), ego()).clusters) >= 2  # colour alone

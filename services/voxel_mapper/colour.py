@@ -4,6 +4,13 @@ Colours are normalised to 0..1 in RGB and HSL (hue as a fraction of the circle),
 terms of Eq. 1 weigh alike: ``f(v, c) = ||RGB(v) - RGB(c)||_2 + ||HSL(v) - HSL(c)||_1``.
 The functions are numba-compiled because the map update calls ``rgb_to_hsl`` once per point
 and the flood fill calls ``similarity`` once per candidate neighbour.
+
+Hue is an angle, and the hue of a grey is noise: asphalt, concrete and a grey wall give each
+pixel an arbitrary hue. Read as a plain number (the default, as the paper writes Eq. 1), red at
+0.02 and at 0.98 average to cyan and differ by nearly the whole circle. With ``circular`` hue is
+averaged as a chroma vector (grey points add nothing; voxel_map.py) and Eq. 1's hue term goes the
+short way round the circle. It is an option, off, because the rest of the pipeline was measured
+with the plain reading: docs/results/voxel.md, "Session 36", has what it changes.
 """
 
 from __future__ import annotations
@@ -36,13 +43,35 @@ def rgb_to_hsl(r: float, g: float, b: float) -> tuple[float, float, float]:
 
 @numba.njit(cache=True, inline="always")
 def similarity(rgb_v: npt.NDArray[np.float64], hsl_v: npt.NDArray[np.float64],
-               rgb_c: npt.NDArray[np.float64], hsl_c: npt.NDArray[np.float64]) -> float:
+               rgb_c: npt.NDArray[np.float64], hsl_c: npt.NDArray[np.float64], circular: bool = False) -> float:
     """Eq. 1: Euclidean distance in RGB plus Manhattan distance in HSL, on normalised means."""
     dr = rgb_v[0] - rgb_c[0]
     dg = rgb_v[1] - rgb_c[1]
     db = rgb_v[2] - rgb_c[2]
-    l1 = abs(hsl_v[0] - hsl_c[0]) + abs(hsl_v[1] - hsl_c[1]) + abs(hsl_v[2] - hsl_c[2])
+    d_hue = abs(hsl_v[0] - hsl_c[0])
+    if circular:
+        d_hue = min(d_hue, 1.0 - d_hue)
+    l1 = d_hue + abs(hsl_v[1] - hsl_c[1]) + abs(hsl_v[2] - hsl_c[2])
     return np.sqrt(dr * dr + dg * dg + db * db) + l1
+
+
+@numba.njit(cache=True, inline="always")
+def hue_of(chroma_x: float, chroma_y: float) -> float:
+    """The hue (0..1) of a summed chroma vector; 0 for a grey (a zero vector)."""
+    return (np.arctan2(chroma_y, chroma_x) / (2.0 * np.pi)) % 1.0
+
+
+def hue_and_spread(chroma: npt.NDArray[np.float64], weight: npt.NDArray[np.float64]) -> tuple[
+        npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Mean hue and circular variance (both 0..1) from summed chroma vectors (n, 2) and their lengths (n,).
+
+    The variance is one less the summed vector's length over the summed lengths: 0 when every
+    coloured point has one hue, 1 when their hues cancel out (and for a grey, whose hue is no datum).
+    """
+    hue = (np.arctan2(chroma[:, 1], chroma[:, 0]) / (2.0 * np.pi)) % 1.0
+    length = np.hypot(chroma[:, 0], chroma[:, 1])
+    spread = np.where(weight > 0.0, 1.0 - length / np.maximum(weight, 1e-12), 1.0)
+    return hue, np.clip(spread, 0.0, 1.0)
 
 
 @numba.njit(cache=True)

@@ -76,10 +76,10 @@ class VoxelMapper:
                  bridge_voxels: int = 3, points_range_m: float = 0.0, min_points_far: int = 2,
                  join_min_voxels: int = 0, cut_tall_m: float = 0.0, cut_low_m: float = 2.2,
                  cut_min_voxels: int = 12, step_voxels: int = 0, group_dense_share: float = 0.0,
-                 group_min_voxels: int = 40, aggregate_in_turn_m: float = 0.0) -> None:
+                 group_min_voxels: int = 40, aggregate_in_turn_m: float = 0.0, circular_hue: bool = False) -> None:
         if edge <= 0.0:
             raise ConfigError(f"voxel.edge must be > 0, got {edge}")
-        self.map = VoxelMap(edge, keep_frames)
+        self.map = VoxelMap(edge, keep_frames, circular_hue=circular_hue)
         self.volume = volume
         self.ground = ground
         self.epsilon = epsilon
@@ -116,7 +116,7 @@ class VoxelMapper:
                    join_min_voxels=v.join_min_voxels, cut_tall_m=v.cut_tall_m, cut_low_m=v.cut_low_m,
                    cut_min_voxels=v.cut_min_voxels, step_voxels=v.step_bridge_voxels,
                    group_dense_share=v.group_dense_share, group_min_voxels=v.group_min_voxels,
-                   aggregate_in_turn_m=v.aggregate_in_turn_m)
+                   aggregate_in_turn_m=v.aggregate_in_turn_m, circular_hue=v.circular_hue)
 
     def process(self, cloud: PointCloud, ego: EgoMotion) -> Clusters:
         """Update the map with one frame and cluster the voxels above the road."""

@@ -2,7 +2,8 @@
 
 A cluster grows from a seed voxel through the closed Chebyshev unit ball of each member: a
 not-yet-considered neighbour joins when its mean colour is within ``epsilon`` (Eq. 1) of the
-cluster's running mean colour (the mean of its voxels' mean colours). The growth is sequential
+cluster's running mean colour (the mean of its voxels' mean colours; with circular hue, the
+hue is the direction of their summed chroma vectors, colour.py). The growth is sequential
 (each decision depends on the mean so far), so it is a numba kernel; neighbours are found in the
 map's hash table, one key addition and one lookup each. Seeds are taken in order of decreasing
 point count, so a cluster's running mean starts from its best-observed voxel.
@@ -15,8 +16,8 @@ import numpy as np
 import numpy.typing as npt
 
 from common.voxel_keys import BITS
-from services.voxel_mapper.colour import similarity
-from services.voxel_mapper.voxel_map import EMPTY, VoxelMap, find
+from services.voxel_mapper.colour import hue_of, similarity
+from services.voxel_mapper.voxel_map import CHROMA, EMPTY, VoxelMap, find
 
 I32 = npt.NDArray[np.int32]
 
@@ -33,11 +34,13 @@ DELTAS = neighbour_deltas()
 @numba.njit(cache=True)
 def _grow(seeds: npt.NDArray[np.int64], candidate: npt.NDArray[np.bool_], keys: npt.NDArray[np.int64],
           table_keys: npt.NDArray[np.int64], table_slots: I32, shift: int, deltas: npt.NDArray[np.int64],
-          rgb: npt.NDArray[np.float64], hsl: npt.NDArray[np.float64], epsilon: float) -> tuple[I32, int]:
+          rgb: npt.NDArray[np.float64], hsl: npt.NDArray[np.float64], chroma: npt.NDArray[np.float64],
+          circular: bool, epsilon: float) -> tuple[I32, int]:
     labels = np.full(candidate.shape[0], -1, dtype=np.int32)
     queue = np.empty(seeds.shape[0], dtype=np.int64)
     sum_rgb = np.zeros(3)
     sum_hsl = np.zeros(3)
+    sum_chroma = np.zeros(2)
     mean_rgb = np.zeros(3)
     mean_hsl = np.zeros(3)
     n_clusters = 0
@@ -49,7 +52,10 @@ def _grow(seeds: npt.NDArray[np.int64], candidate: npt.NDArray[np.bool_], keys: 
         labels[seed] = label
         sum_rgb[:] = rgb[seed]
         sum_hsl[:] = hsl[seed]
+        sum_chroma[:] = chroma[seed]
         members = 1.0
+        mean_rgb[:] = rgb[seed]
+        mean_hsl[:] = hsl[seed]
         queue[0] = seed
         head, tail = 0, 1
         while head < tail:
@@ -59,14 +65,17 @@ def _grow(seeds: npt.NDArray[np.int64], candidate: npt.NDArray[np.bool_], keys: 
                 s = find(table_keys, table_slots, shift, key + d)
                 if s == EMPTY or not candidate[s] or labels[s] != -1:
                     continue
-                for c in range(3):
-                    mean_rgb[c] = sum_rgb[c] / members
-                    mean_hsl[c] = sum_hsl[c] / members
-                if similarity(rgb[s], hsl[s], mean_rgb, mean_hsl) < epsilon:
+                if similarity(rgb[s], hsl[s], mean_rgb, mean_hsl, circular) < epsilon:
                     labels[s] = label
                     sum_rgb += rgb[s]
                     sum_hsl += hsl[s]
+                    sum_chroma += chroma[s]
                     members += 1.0
+                    for c in range(3):
+                        mean_rgb[c] = sum_rgb[c] / members
+                        mean_hsl[c] = sum_hsl[c] / members
+                    if circular:
+                        mean_hsl[0] = hue_of(sum_chroma[0], sum_chroma[1])
                     queue[tail] = s
                     tail += 1
     return labels, n_clusters
@@ -95,8 +104,9 @@ def flood_fill(vmap: VoxelMap, candidate: npt.NDArray[np.bool_], epsilon: float)
     seeds = members[np.argsort(-vmap.counts[members], kind="stable")]
     rgb = np.ascontiguousarray(vmap.mean("rgb"))
     hsl = np.ascontiguousarray(vmap.mean("hsl"))
+    chroma = np.ascontiguousarray(vmap.stats[: vmap.n, CHROMA] / vmap.counts[:, None])
     return _grow(seeds, candidate, vmap.keys, vmap.table_keys, vmap.table_slots, vmap.shift, DELTAS,
-                 rgb, hsl, float(epsilon))
+                 rgb, hsl, chroma, vmap.circular_hue, float(epsilon))
 
 
 def touching_pairs(vmap: VoxelMap, labels: I32) -> npt.NDArray[np.int64]:

@@ -17,12 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.messages import Cluster
-from services.voxel_mapper.voxel_map import HSL, HSL2, RGB, RGB2, XYZ, VoxelMap
-
-
-def _pooled(sums: np.ndarray, squares: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    mean = sums / counts[:, None]
-    return mean.astype(np.float32), np.maximum(squares / counts[:, None] - mean * mean, 0.0).astype(np.float32)
+from services.voxel_mapper.voxel_map import XYZ, VoxelMap, colour_stats
 
 
 def describe(vmap: VoxelMap, labels: npt.NDArray[np.int32]) -> list[Cluster]:
@@ -41,9 +36,8 @@ def describe(vmap: VoxelMap, labels: npt.NDArray[np.int32]) -> list[Cluster]:
     hits = np.rint(vmap.hits[slots]).astype(np.int32)
     centroids = stats[:, XYZ] / stats[:, 0:1]
     sums = np.add.reduceat(stats, starts, axis=0)
-    points = sums[:, 0]
-    rgb_mean, rgb_var = _pooled(sums[:, RGB], sums[:, RGB2], points)
-    hsl_mean, hsl_var = _pooled(sums[:, HSL], sums[:, HSL2], points)
+    rgb_mean, rgb_var = (a.astype(np.float32) for a in colour_stats(sums, "rgb"))
+    hsl_mean, hsl_var = (a.astype(np.float32) for a in colour_stats(sums, "hsl", vmap.circular_hue))
     centre = np.array([np.median(centroids[s:s + n], axis=0) for s, n in zip(starts, counts, strict=True)])
     half = 0.5 * vmap.edge
     box_lo = np.minimum.reduceat(centroids, starts, axis=0) - half

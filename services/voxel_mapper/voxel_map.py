@@ -5,6 +5,10 @@ one int64 key (21 bits each), and an open-addressing hash table (linear probing,
 maps keys to dense slots, so insert and lookup cost O(1) on average, and a move to any of the
 26 neighbours is one key addition and one lookup. Per slot the map keeps running sums from which
 the paper's per-voxel data follow: point count, centroid, mean and variance of RGB and of HSL.
+With ``circular_hue`` each point's chroma vector is summed too (its direction is the hue, its
+length how much colour the point has), so that the mean hue is an angle's mean and a grey's noise
+cancels out (colour.py); the paper's reading, hue as a plain number, stays the default (docs/results/voxel.md,
+"Session 36").
 
 The frame-to-frame update follows the paper: points brought into the world with the vehicle pose
 update the voxel they fall in, a voxel is created only where empty space becomes occupied, and
@@ -20,7 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.voxel_keys import BITS, OFFSET, unpack
-from services.voxel_mapper.colour import rgb_to_hsl
+from services.voxel_mapper.colour import hue_and_spread, rgb_to_hsl
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -32,7 +36,10 @@ GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 # Columns of the per-voxel sums.
 COUNT, XYZ, RGB, RGB2, HSL, HSL2 = 0, slice(1, 4), slice(4, 7), slice(7, 10), slice(10, 13), slice(13, 16)
 HITS = 16  # points of the latest frame that hit the voxel
-N_STATS = 17
+CHROMA = slice(17, 19)  # with circular hue: chroma vectors (r - (g + b) / 2, sqrt(3) / 2 (g - b))
+CHROMA_W = 19  # ... and their lengths
+N_STATS = 20
+SQRT3_2 = float(np.sqrt(3.0) / 2.0)
 
 
 @numba.njit(cache=True, inline="always")
@@ -93,7 +100,7 @@ def _probe_or_add(key: int, n: int, limit: int, keys: I64, stats: F64, table_key
 @numba.njit(cache=True)
 def _insert(points: npt.NDArray[np.float32], colors: npt.NDArray[np.uint8], rot: F64, trans: F64,
             inv_edge: float, start: int, n: int, keys: I64, stats: F64, last_seen: I64, frame: int,
-            table_keys: I64, table_slots: npt.NDArray[np.int32], shift: int) -> tuple[int, int]:
+            table_keys: I64, table_slots: npt.NDArray[np.int32], shift: int, circular_hue: bool) -> tuple[int, int]:
     """Add points[start:] to the map; stops early (returning where) when the table is half full."""
     limit = min(keys.shape[0], table_keys.shape[0] // 2)
     last_key, last_slot = -1, -1
@@ -134,6 +141,11 @@ def _insert(points: npt.NDArray[np.float32], colors: npt.NDArray[np.uint8], rot:
         st[13] += hue * hue
         st[14] += sat * sat
         st[15] += light * light
+        if circular_hue:  # the chroma plane's coordinates: no trigonometry per point
+            alpha, beta = r - 0.5 * (g + b), SQRT3_2 * (g - b)
+            st[17] += alpha
+            st[18] += beta
+            st[19] += np.sqrt(alpha * alpha + beta * beta)
         if last_seen[s] != frame:
             st[16] = 0.0
             last_seen[s] = frame
@@ -144,9 +156,10 @@ def _insert(points: npt.NDArray[np.float32], colors: npt.NDArray[np.uint8], rot:
 class VoxelMap:
     """Occupied voxels of the world at one edge length, with their running statistics."""
 
-    def __init__(self, edge: float, keep_frames: int = 0, capacity: int = 1 << 15) -> None:
+    def __init__(self, edge: float, keep_frames: int = 0, capacity: int = 1 << 15, circular_hue: bool = False) -> None:
         self.edge = float(edge)
         self.keep_frames = int(keep_frames)
+        self.circular_hue = bool(circular_hue)
         self.frame = 0
         self.n = 0
         self._allocate(capacity)
@@ -181,7 +194,8 @@ class VoxelMap:
         start = 0
         while start < pts.shape[0]:
             self.n, start = _insert(pts, cols, rot, trans, 1.0 / self.edge, start, self.n, self.keys, self.stats,
-                                    self.last_seen, self.frame, self.table_keys, self.table_slots, self.shift)
+                                    self.last_seen, self.frame, self.table_keys, self.table_slots, self.shift,
+                                    self.circular_hue)
             if start < pts.shape[0]:
                 self._grow()
 
@@ -228,11 +242,22 @@ class VoxelMap:
 
     def mean(self, space: str) -> F64:
         """Mean colour per voxel, ``space`` = "rgb" or "hsl" (0..1)."""
-        cols = RGB if space == "rgb" else HSL
-        return self.stats[: self.n, cols] / self.counts[:, None]
+        return colour_stats(self.stats[: self.n], space, self.circular_hue)[0]
 
     def variance(self, space: str) -> F64:
-        cols, sq = (RGB, RGB2) if space == "rgb" else (HSL, HSL2)
-        n = self.counts[:, None]
-        mean = self.stats[: self.n, cols] / n
-        return np.maximum(self.stats[: self.n, sq] / n - mean * mean, 0.0)
+        """Colour variance per voxel; for hue the circular variance (hue_and_spread)."""
+        return colour_stats(self.stats[: self.n], space, self.circular_hue)[1]
+
+
+def colour_stats(sums: F64, space: str, circular_hue: bool = False) -> tuple[F64, F64]:
+    """Mean and variance of colour from rows of the per-voxel sums (one voxel's, or a cluster's added up).
+
+    With ``circular_hue`` the hue's are the chroma vectors' direction and circular variance.
+    """
+    n = sums[:, COUNT : COUNT + 1]
+    cols, sq = (RGB, RGB2) if space == "rgb" else (HSL, HSL2)
+    mean = sums[:, cols] / n
+    var = np.maximum(sums[:, sq] / n - mean * mean, 0.0)
+    if space == "hsl" and circular_hue:
+        mean[:, 0], var[:, 0] = hue_and_spread(sums[:, CHROMA], sums[:, CHROMA_W])
+    return mean, var
