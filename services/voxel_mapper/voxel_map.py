@@ -7,8 +7,8 @@ maps keys to dense slots, so insert and lookup cost O(1) on average, and a move 
 the paper's per-voxel data follow: point count, centroid, mean and variance of RGB and of HSL.
 With ``circular_hue`` each point's chroma vector is summed too (its direction is the hue, its
 length how much colour the point has), so that the mean hue is an angle's mean and a grey's noise
-cancels out (colour.py); the paper's reading, hue as a plain number, stays the default (docs/results/voxel.md,
-"Session 36").
+cancels out (colour.py); the paper's reading, hue as a plain number, stays the default
+(docs/results/voxel.md, "Session 36").
 
 The frame-to-frame update follows the paper: points brought into the world with the vehicle pose
 update the voxel they fall in, a voxel is created only where empty space becomes occupied, and
