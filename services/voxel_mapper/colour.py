@@ -15,6 +15,8 @@ with the plain reading: docs/results/voxel.md, "Session 36", has what it changes
 
 from __future__ import annotations
 
+from typing import Any
+
 import numba
 import numpy as np
 import numpy.typing as npt
@@ -56,8 +58,8 @@ def similarity(rgb_v: npt.NDArray[np.float64], hsl_v: npt.NDArray[np.float64],
 
 
 @numba.njit(cache=True, inline="always")
-def hue_of(chroma_x: float, chroma_y: float) -> float:
-    """The hue (0..1) of a summed chroma vector; 0 for a grey (a zero vector)."""
+def hue_of(chroma_x: float | npt.NDArray[np.float64], chroma_y: float | npt.NDArray[np.float64]) -> Any:
+    """The hue (0..1) of a summed chroma vector, or of arrays of them; 0 for a grey (a zero vector)."""
     return (np.arctan2(chroma_y, chroma_x) / (2.0 * np.pi)) % 1.0
 
 
@@ -68,7 +70,7 @@ def hue_and_spread(chroma: npt.NDArray[np.float64], weight: npt.NDArray[np.float
     The variance is one less the summed vector's length over the summed lengths: 0 when every
     coloured point has one hue, 1 when their hues cancel out (and for a grey, whose hue is no datum).
     """
-    hue = (np.arctan2(chroma[:, 1], chroma[:, 0]) / (2.0 * np.pi)) % 1.0
+    hue = hue_of(chroma[:, 0], chroma[:, 1])
     length = np.hypot(chroma[:, 0], chroma[:, 1])
     spread = np.where(weight > 0.0, 1.0 - length / np.maximum(weight, 1e-12), 1.0)
     return hue, np.clip(spread, 0.0, 1.0)
