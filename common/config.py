@@ -216,6 +216,12 @@ class TrackerConfig:
     left_behind_frames: int = 3  # a track whose footprint this many frames back others now hold slid; 0 = off
     left_behind_share: float = 0.5  # ... if they hold more than this share of it: it starts again from rest
     young_jump_frames: int = 0  # ... a track younger than this (frames) is not paired with such a cluster; 0 = off
+    part_min_voxels: int = 0  # a cluster two known tracks lie in is parted, pieces of this many voxels or more; 0 = off
+    part_min_age: int = 5  # ... between tracks at least this old (frames)
+    part_doubt: float = 0.5  # ... and a part's centroid doubted by this share of its extent (std, per axis)
+    part_keep_cut: bool = True  # ... but never a cluster the image's side edge cuts
+    part_max_extent_m: float = 6.0  # ... and only between tracks whose boxes are at most this long (x and y)
+    part_standing_only: bool = True  # ... labelled stationary (measured: the best of the variants, tracking.md)
     fragment_margin: float = 0.25  # clusters in a known track's predicted box grown by this (m) merge; < 0: off
     fragment_gap: float = 0.1  # ... only pieces whose boxes touch (chained by gaps up to this, m); < 0: any
     fragment_standing_m: float = 0.3  # ... two reaching this near their floor (m) only if footprints touch; < 0: off

@@ -40,6 +40,7 @@ import numpy.typing as npt
 from common.config import Config, VolumeConfig
 from common.messages import Cluster, Clusters, EgoMotion, Obstacles
 from services.tracker import kalman, motion_window
+from services.tracker.anchor import anchors
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
 from services.tracker.clock import FrameClock
 from services.tracker.fragments import APART_BY_BOX, Sight, Standing, claims, gather, stand_apart
@@ -49,6 +50,7 @@ from services.tracker.left_behind import LeftBehind, restart_from_rest
 from services.tracker.measurement import cut_covariance, stereo_covariance, view_cut_covariance, visibility_covariance
 from services.tracker.motion_state import SLIDE_SMOOTHING, EgoVelocity, Hysteresis
 from services.tracker.observations import Observations, observe
+from services.tracker.parting import NO_PARTING, Parting, part_shared
 from services.tracker.queues import NO_COASTING, Coasting, advance, merged_away
 from services.tracker.report import obstacles_of
 from services.tracker.track import ACCEPTANCE, GHOST, TRACKED, TrackTable
@@ -68,6 +70,7 @@ COUNTERS: tuple[str, ...] = (
     "tracks_born",
     "tracks_dropped",
     "slid",
+    "parted",
 )
 
 
@@ -107,6 +110,7 @@ class Tracker:
         jump_speed_std: float = 0.0,
         young_jump_frames: int = 0,
         left_behind: LeftBehind | None = None,
+        parting: Parting = NO_PARTING,
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -121,6 +125,8 @@ class Tracker:
         self.jumps = Jumps(jump_nis, jump_speed_std**2, young_jump_frames)
         self.left_behind = left_behind or LeftBehind(0)
         self.fragment_margin = fragment_margin
+        self.parting = parting
+        self._parts: set[int] = set()  # this frame's parted pieces, by identity (_part)
         self.fragment_gap = fragment_gap
         self.standing = standing
         self.accept_misses = accept_misses
@@ -179,6 +185,14 @@ class Tracker:
             jump_speed_std=t.jump_speed_std,
             young_jump_frames=t.young_jump_frames,
             left_behind=LeftBehind(t.left_behind_frames, t.left_behind_share),
+            parting=Parting(
+                t.part_min_voxels,
+                t.part_min_age,
+                t.part_doubt,
+                t.part_keep_cut,
+                t.part_max_extent_m,
+                t.part_standing_only,
+            ),
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
@@ -194,10 +208,16 @@ class Tracker:
         pose = self._placement_pose(clusters, ego)
         self._predict(dt)
         sight = Sight(pose[0:3, 3], clusters.voxel_edge)
-        pieces = self._gather(clusters, sight)
+        self._parts = set()
+        pieces = self._gather(clusters, sight, pose)
         obs = self._observe(pieces, pose, clusters.voxel_edge, clusters.view)
-        r = self._cluster_cov(obs, pose, clusters.voxel_edge)
+        parted = np.zeros(len(obs), dtype=bool)
+        if self._parts:
+            parted[:] = [id(pieces[int(i)]) in self._parts for i in obs.index]
+        r = self._cluster_cov(obs, pose, clusters.voxel_edge) + self._part_cov(obs, parted)
         rows, cols = self._associate(obs, r)
+        self.tracks.parted[:] = False
+        self.tracks.parted[rows] = parted[cols]
         if trusted:
             self._correct(rows, obs.take(cols), r[cols])
         piece_of = {int(i): pieces[int(obs.index[j])] for i, j in zip(rows, cols, strict=True)}
@@ -209,9 +229,11 @@ class Tracker:
         self._advance_queues(rows, elapsed, piece_of, sight)
         fresh = np.ones(len(obs), dtype=bool)
         fresh[cols] = False
-        self._spawn(obs.take(fresh), r[fresh])
+        self._spawn(obs.take(fresh), r[fresh], parted[fresh])
         if trusted:
-            self.tracks.moving = self.labeller.label(self.tracks, clusters.voxel_edge, pose[0:2, 3])
+            moving = self.labeller.label(self.tracks, clusters.voxel_edge, pose[0:2, 3])
+            # a part's motion is partly where the parting drew its edge: it may keep a label, not give one
+            self.tracks.moving = moving & (self.tracks.moving | ~self.tracks.parted)
         return obstacles_of(self.tracks, self.ego.velocity, clusters, ego)
 
     # ------------------------------------------------------------------ input
@@ -224,7 +246,7 @@ class Tracker:
         self.ego.observe(ego.pose, trusted, ego.world_epoch, ego.stamp_ns)
         return trusted
 
-    def _gather(self, clusters: Clusters, sight: Sight) -> list[Cluster]:
+    def _gather(self, clusters: Clusters, sight: Sight, pose: NDArray) -> list[Cluster]:
         """The clusters with the pieces of one known object merged (fragments.py)."""
         t = self.tracks
         known = t.queue != ACCEPTANCE
@@ -233,7 +255,48 @@ class Tracker:
         shift = (t.x[known, 0:3] + t.offset[known]) - t.centroid[known]
         lo, hi = t.bbox_min[known] + shift, t.bbox_max[known] + shift
         margin, edge = self.fragment_margin, clusters.voxel_edge
-        return gather(clusters.clusters, lo, hi, margin, edge, self.fragment_gap, self.standing, sight)
+        gathered = gather(clusters.clusters, lo, hi, margin, edge, self.fragment_gap, self.standing, sight)
+        return self._part(gathered, edge, pose, clusters.view)
+
+    def _part(self, clusters: list[Cluster], edge: float, pose: NDArray, view: NDArray) -> list[Cluster]:
+        """Clusters two confirmed tracks lie in, parted between them (parting.py)."""
+        t = self.tracks
+        if self.parting.min_voxels <= 0 or len(t) == 0:
+            return clusters
+        recent = (t.queue == TRACKED) | ((t.queue == GHOST) & (t.misses <= 2))
+        extent = t.bbox_max - t.bbox_min
+        claim = recent & (t.age >= self.parting.min_age) & (extent[:, 0:2].max(axis=1) <= self.parting.max_extent_m)
+        if self.parting.standing_only:
+            claim &= ~t.moving
+        if claim.sum() < 2:
+            return clusters
+        # where each was last seen, not where its filter expects it: a track sliding along a hedge
+        # would otherwise claim the voxels ahead of it and measure its own slide
+        out, n = part_shared(
+            clusters, t.centroid[claim], t.bbox_min[claim], t.bbox_max[claim],
+            t.rgb[claim], t.hsl[claim], t.age[claim].astype(np.float64), edge, self.parting,
+            lambda c: self._cut_by_view(c, pose, edge, view),
+        )  # fmt: skip
+        self.counters["parted"] += n
+        given = {id(c) for c in clusters}
+        self._parts = {id(p) for p in out if id(p) not in given}
+        return out
+
+    def _cut_by_view(self, cluster: Cluster, pose: NDArray, edge: float, view: NDArray) -> bool:
+        """Whether the image's side edge cuts the cluster: its parts' ends there slide with the vehicle."""
+        if not self.parting.keep_cut:
+            return False
+        cut = anchors([cluster], np.asarray(cluster.centroid)[None, :], pose, edge, view, self.view_margin_m)[4]
+        return bool(cut[0])
+
+    def _part_cov(self, obs: Observations, parted: NDArray) -> NDArray:
+        """A part's centroid doubted by a share of its extent: where it ends is the parting's guess."""
+        out = np.zeros((len(obs), 3, 3))
+        if not parted.any() or self.parting.doubt <= 0.0:
+            return out
+        idx = np.arange(3)
+        out[:, idx, idx] = np.where(parted[:, None], (self.parting.doubt * obs.extent) ** 2, 0.0)
+        return out
 
     def _observe(self, clusters: list[Cluster], pose: NDArray, edge: float, view: NDArray) -> Observations:
         obs, dropped = observe(clusters, pose, edge, view, self.view_margin_m)
@@ -326,7 +389,8 @@ class Tracker:
         # merged into); a track already moving keeps its faces, which its label stays on
         extent_step = np.abs(obs.extent - extent_before)[:, 0:2].max(axis=1)
         reshaped = (extent_step > self.reshape_m) & ~t.moving[rows]
-        motion_window.restart(t.window_n, rows[jump | reshaped | refound])
+        # a part's faces are where the parting drew its edges: the window starts again after one
+        motion_window.restart(t.window_n, rows[jump | reshaped | refound | (t.parted[rows] & ~t.moving[rows])])
         motion_window.push(t.window, t.window_t, t.window_n, rows, obs.anchor, self._clock)
         motion_window.push(t.window_far, t.window_t.copy(), t.window_n.copy(), rows, obs.anchor + obs.far, self._clock)
         t.nis[rows] += self.noise_adaptation * (np.where(jump, t.nis[rows], nis) - t.nis[rows])
@@ -431,7 +495,7 @@ class Tracker:
             p[upright, 3, 3] = p[upright, 4, 4] = self.upright_speed_std**2
         return p
 
-    def _spawn(self, obs: Observations, r: NDArray) -> None:
+    def _spawn(self, obs: Observations, r: NDArray, parted: NDArray) -> None:
         """New acceptance tracks (``_initial_p``)."""
         n = len(obs)
         if n == 0:
@@ -470,5 +534,6 @@ class Tracker:
                 window_far=window_far,
                 window_t=np.full((n, motion_window.SIZE), self._clock),
                 window_n=np.ones(n, dtype=np.int64),
+                parted=parted.copy(),
             )
         )

@@ -55,6 +55,7 @@ class TrackTable:
     window_far: NDArray = _empty(WINDOW, 2)  # the far ends of the same clusters
     window_t: NDArray = _empty(WINDOW)  # their times (s, tracker clock)
     window_n: NDArray = _empty(dtype=np.int64)  # how many of them belong to the current cluster shape
+    parted: NDArray = _empty(dtype=bool)  # measured this frame on a part of a shared cluster (parting.py)
 
     def __len__(self) -> int:
         return int(self.ids.shape[0])
