@@ -40,7 +40,6 @@ import numpy.typing as npt
 from common.config import Config, VolumeConfig
 from common.messages import Cluster, Clusters, EgoMotion, Obstacles
 from services.tracker import kalman, motion_window
-from services.tracker.anchor import anchors
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
 from services.tracker.clock import FrameClock
 from services.tracker.fragments import APART_BY_BOX, Sight, Standing, claims, gather, stand_apart
@@ -50,7 +49,7 @@ from services.tracker.left_behind import LeftBehind, restart_from_rest
 from services.tracker.measurement import cut_covariance, stereo_covariance, view_cut_covariance, visibility_covariance
 from services.tracker.motion_state import SLIDE_SMOOTHING, EgoVelocity, Hysteresis
 from services.tracker.observations import Observations, observe
-from services.tracker.parting import NO_PARTING, Parting, part_shared
+from services.tracker.parting import NO_PARTING, Parting, cut_by_view, part_covariance, part_tracked
 from services.tracker.queues import NO_COASTING, Coasting, advance, merged_away
 from services.tracker.report import obstacles_of
 from services.tracker.track import ACCEPTANCE, GHOST, TRACKED, TrackTable
@@ -214,7 +213,7 @@ class Tracker:
         parted = np.zeros(len(obs), dtype=bool)
         if self._parts:
             parted[:] = [id(pieces[int(i)]) in self._parts for i in obs.index]
-        r = self._cluster_cov(obs, pose, clusters.voxel_edge) + self._part_cov(obs, parted)
+        r = self._cluster_cov(obs, pose, clusters.voxel_edge) + part_covariance(obs.extent, parted, self.parting.doubt)
         rows, cols = self._associate(obs, r)
         self.tracks.parted[:] = False
         self.tracks.parted[rows] = parted[cols]
@@ -259,43 +258,12 @@ class Tracker:
         return self._part(gathered, edge, pose, clusters.view)
 
     def _part(self, clusters: list[Cluster], edge: float, pose: NDArray, view: NDArray) -> list[Cluster]:
-        """Clusters two confirmed tracks lie in, parted between them (parting.py)."""
-        t = self.tracks
-        if self.parting.min_voxels <= 0 or len(t) == 0:
+        """Clusters two known standing tracks lie in, parted between them (parting.py)."""
+        if self.parting.min_voxels <= 0:
             return clusters
-        recent = (t.queue == TRACKED) | ((t.queue == GHOST) & (t.misses <= 2))
-        extent = t.bbox_max - t.bbox_min
-        claim = recent & (t.age >= self.parting.min_age) & (extent[:, 0:2].max(axis=1) <= self.parting.max_extent_m)
-        if self.parting.standing_only:
-            claim &= ~t.moving
-        if claim.sum() < 2:
-            return clusters
-        # where each was last seen, not where its filter expects it: a track sliding along a hedge
-        # would otherwise claim the voxels ahead of it and measure its own slide
-        out, n = part_shared(
-            clusters, t.centroid[claim], t.bbox_min[claim], t.bbox_max[claim],
-            t.rgb[claim], t.hsl[claim], t.age[claim].astype(np.float64), edge, self.parting,
-            lambda c: self._cut_by_view(c, pose, edge, view),
-        )  # fmt: skip
+        whole = cut_by_view(pose, edge, view, self.view_margin_m) if self.parting.keep_cut else None
+        out, self._parts, n = part_tracked(clusters, self.tracks, self.parting, edge, whole)
         self.counters["parted"] += n
-        given = {id(c) for c in clusters}
-        self._parts = {id(p) for p in out if id(p) not in given}
-        return out
-
-    def _cut_by_view(self, cluster: Cluster, pose: NDArray, edge: float, view: NDArray) -> bool:
-        """Whether the image's side edge cuts the cluster: its parts' ends there slide with the vehicle."""
-        if not self.parting.keep_cut:
-            return False
-        cut = anchors([cluster], np.asarray(cluster.centroid)[None, :], pose, edge, view, self.view_margin_m)[4]
-        return bool(cut[0])
-
-    def _part_cov(self, obs: Observations, parted: NDArray) -> NDArray:
-        """A part's centroid doubted by a share of its extent: where it ends is the parting's guess."""
-        out = np.zeros((len(obs), 3, 3))
-        if not parted.any() or self.parting.doubt <= 0.0:
-            return out
-        idx = np.arange(3)
-        out[:, idx, idx] = np.where(parted[:, None], (self.parting.doubt * obs.extent) ** 2, 0.0)
         return out
 
     def _observe(self, clusters: list[Cluster], pose: NDArray, edge: float, view: NDArray) -> Observations:

@@ -34,6 +34,8 @@ import numpy as np
 import numpy.typing as npt
 
 from common.messages import Cluster
+from services.tracker.anchor import anchors
+from services.tracker.track import GHOST, TRACKED, TrackTable
 
 NDArray = npt.NDArray[Any]
 
@@ -175,3 +177,49 @@ def part_shared(
         parted += len(pieces) > 1
         out.extend(pieces)
     return out, parted
+
+
+def claimants(t: TrackTable, rule: Parting) -> NDArray:
+    """Which tracks claim: confirmed, old enough, of an object's size (and standing, if the rule says)."""
+    recent = (t.queue == TRACKED) | ((t.queue == GHOST) & (t.misses <= 2))
+    extent = t.bbox_max - t.bbox_min
+    claim = recent & (t.age >= rule.min_age) & (extent[:, 0:2].max(axis=1) <= rule.max_extent_m)
+    return claim & ~t.moving if rule.standing_only else claim
+
+
+def part_tracked(
+    clusters: list[Cluster], t: TrackTable, rule: Parting, edge: float, whole: Callable[[Cluster], bool] | None = None
+) -> tuple[list[Cluster], set[int], int]:
+    """The clusters with those the tracks' claimants share parted; the new parts, by identity; how many were parted.
+
+    A claimant's box is where it was last seen, not where its filter expects it: a track sliding
+    along a hedge would otherwise claim the voxels ahead of it and measure its own slide.
+    """
+    claim = claimants(t, rule)
+    if claim.sum() < 2:
+        return clusters, set(), 0
+    out, n = part_shared(
+        clusters, t.centroid[claim], t.bbox_min[claim], t.bbox_max[claim],
+        t.rgb[claim], t.hsl[claim], t.age[claim].astype(np.float64), edge, rule,
+        whole or (lambda c: False),
+    )  # fmt: skip
+    given = {id(c) for c in clusters}
+    return out, {id(p) for p in out if id(p) not in given}, n
+
+
+def cut_by_view(pose: NDArray, edge: float, view: NDArray, margin: float) -> Callable[[Cluster], bool]:
+    """Whether the image's side edge cuts a cluster (anchor.py): its parts' ends there slide with the vehicle."""
+
+    def cut(cluster: Cluster) -> bool:
+        return bool(anchors([cluster], np.asarray(cluster.centroid)[None, :], pose, edge, view, margin)[4][0])
+
+    return cut
+
+
+def part_covariance(extent: NDArray, parted: NDArray, doubt: float) -> NDArray:
+    """(m, 3, 3) what a part's centroid is doubted by, a share of its extent: where it ends is the parting's guess."""
+    out = np.zeros((len(extent), 3, 3))
+    if doubt > 0.0 and parted.any():
+        idx = np.arange(3)
+        out[:, idx, idx] = np.where(parted[:, None], (doubt * extent) ** 2, 0.0)
+    return out
