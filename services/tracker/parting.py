@@ -119,10 +119,8 @@ def part(
     return out
 
 
-def _piece(
-    cluster: Cluster, voxels: NDArray, points: NDArray, colour: tuple[NDArray, NDArray] | None, edge: float
-) -> Cluster:
-    """A part of ``cluster``: its own voxels and geometry; the colour of the track that claimed it, if one did."""
+def _piece(cluster: Cluster, voxels: NDArray, points: NDArray, colour: tuple[NDArray, NDArray], edge: float) -> Cluster:
+    """A part of ``cluster``: its own voxels and geometry, the colour of the track that claimed it."""
     centres = (voxels + 0.5) * edge
     lo, hi = centres.min(axis=0) - 0.5 * edge, centres.max(axis=0) + 0.5 * edge
     cells = voxels.max(axis=0) - voxels.min(axis=0) + 1
@@ -131,9 +129,9 @@ def _piece(
         voxels=np.ascontiguousarray(voxels, dtype=np.int32),
         voxel_count=len(voxels),
         voxel_points=np.ascontiguousarray(points, dtype=np.int32),
-        color_mean_rgb=cluster.color_mean_rgb if colour is None else np.asarray(colour[0], dtype=np.float32),
+        color_mean_rgb=np.asarray(colour[0], dtype=np.float32),
         color_var_rgb=cluster.color_var_rgb,
-        color_mean_hsl=cluster.color_mean_hsl if colour is None else np.asarray(colour[1], dtype=np.float32),
+        color_mean_hsl=np.asarray(colour[1], dtype=np.float32),
         color_var_hsl=cluster.color_var_hsl,
         bbox_min=lo,
         bbox_max=hi,
@@ -153,7 +151,7 @@ def part_shared(
     rank: NDArray,
     edge: float,
     rule: Parting,
-    whole: Callable[[Cluster], bool] = lambda c: False,
+    whole: Callable[[Cluster], bool] | None = None,
 ) -> tuple[list[Cluster], int]:
     """Every cluster two claimants' centres lie in, parted (``part``) unless ``whole``; and how many were."""
     if len(centre) < 2 or not clusters:
@@ -170,7 +168,7 @@ def part_shared(
         mine = np.flatnonzero(inside[:, j]) if j in shared else np.zeros(0, dtype=np.int64)
         if len(mine) >= 2:
             mine = mine[distinct(centre[mine], lo[mine], hi[mine], rank[mine])]
-        if len(mine) < 2 or whole(c):
+        if len(mine) < 2 or (whole is not None and whole(c)):
             out.append(c)
             continue
         pieces = part(c, centre[mine], lo[mine], hi[mine], rgb[mine], hsl[mine], edge, rule.min_voxels)
@@ -200,8 +198,7 @@ def part_tracked(
         return clusters, set(), 0
     out, n = part_shared(
         clusters, t.centroid[claim], t.bbox_min[claim], t.bbox_max[claim],
-        t.rgb[claim], t.hsl[claim], t.age[claim].astype(np.float64), edge, rule,
-        whole or (lambda c: False),
+        t.rgb[claim], t.hsl[claim], t.age[claim].astype(np.float64), edge, rule, whole,
     )  # fmt: skip
     given = {id(c) for c in clusters}
     return out, {id(p) for p in out if id(p) not in given}, n
