@@ -1124,7 +1124,8 @@ def test_a_walker_whose_far_smear_swings_is_confirmed_moving_by_his_near_face(ne
 def test_a_walker_starting_from_the_kerb_is_followed_sooner_with_an_upright_process_noise() -> None:
     # waits 8 frames, then crosses at 1.5 m/s; a car's process noise (1 m/s^2) lags him for longer
     def speeds(upright_noise: float) -> list[float]:
-        tracker = new_tracker(upright_process_noise=upright_noise)
+        # the filter alone: the reported velocity's blend with the faces' line would hide the difference
+        tracker = new_tracker(upright_process_noise=upright_noise, velocity_faces=0)
         out = []
         for k in range(16):
             y = -5.0 + 0.15 * max(k - 8, 0)
@@ -1239,3 +1240,26 @@ def test_a_track_that_slid_off_a_standing_object_starts_again_from_rest() -> Non
     assert first(with_it[9]).speed == pytest.approx(first(without[9]).speed)  # the same until then
     assert not first(with_it[10]).moving and first(with_it[10]).speed < 0.5
     assert first(without[10]).moving and first(without[10]).speed > 8.0
+
+
+def test_an_oncoming_car_is_reported_at_its_speed_sooner_with_the_faces_line() -> None:
+    # a car box coming at 9.6 m/s from 27 m: the filter starts it at rest and its prior holds the
+    # first labelled frames back; the line through its last faces has no prior
+    def errors(faces: int) -> tuple[list[float], list[float]]:
+        tracker = new_tracker(velocity_faces=faces)
+        moving, standing = [], []
+        for k in range(14):
+            x = 27.0 - 0.96 * k
+            out = step(tracker, k, [counted(box_voxels((x, -3.0, 0.0), (x + 4.5, -1.25, 1.5))),
+                                    counted(box_voxels((14.0, 4.0, 0.0), (14.5, 4.5, 1.5)))])  # fmt: skip
+            for o in out.obstacles:
+                if o.state == "tracked" and o.centroid[1] < 0.0 and o.moving:
+                    moving.append(abs(float(np.linalg.norm(o.velocity[0:2])) - 9.6))
+                if o.state == "tracked" and o.centroid[1] > 0.0:
+                    standing.append(float(np.linalg.norm(o.velocity[0:2])))
+        return moving, standing
+
+    (blended, post_b), (alone, post_a) = errors(6), errors(0)
+    assert len(blended) == len(alone) >= 5  # the label is the filter's either way
+    assert sum(blended[:3]) < 0.8 * sum(alone[:3])  # the first labelled frames nearer its speed
+    assert post_b == post_a  # a standing track reports the filter's velocity

@@ -51,7 +51,7 @@ from services.tracker.motion_state import SLIDE_SMOOTHING, EgoVelocity, Hysteres
 from services.tracker.observations import Observations, observe
 from services.tracker.parting import NO_PARTING, Parting, cut_by_view, part_covariance, part_tracked
 from services.tracker.queues import NO_COASTING, Coasting, advance, merged_away
-from services.tracker.report import obstacles_of
+from services.tracker.report import FaceVelocity, obstacles_of
 from services.tracker.track import ACCEPTANCE, GHOST, TRACKED, TrackTable
 
 NDArray = npt.NDArray[Any]
@@ -110,6 +110,7 @@ class Tracker:
         young_jump_frames: int = 0,
         left_behind: LeftBehind | None = None,
         parting: Parting = NO_PARTING,
+        velocity_faces: int = 0,
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -125,6 +126,7 @@ class Tracker:
         self.left_behind = left_behind or LeftBehind(0)
         self.fragment_margin = fragment_margin
         self.parting = parting
+        self.faces = FaceVelocity(velocity_faces, measurement_std)  # what the report blends in (report.py)
         self._parts: set[int] = set()  # this frame's parted pieces, by identity (_part)
         self.fragment_gap = fragment_gap
         self.standing = standing
@@ -192,6 +194,7 @@ class Tracker:
                 t.part_max_extent_m,
                 t.part_standing_only,
             ),
+            velocity_faces=t.velocity_faces,
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
@@ -200,7 +203,7 @@ class Tracker:
         if new_world:
             self.tracks = TrackTable()
         if stale:
-            return obstacles_of(self.tracks, self.ego.velocity, clusters, ego)
+            return obstacles_of(self.tracks, self.ego.velocity, clusters, ego, self.faces)
         dt, elapsed = self.guard.step(clusters)
         self._clock += dt
         trusted = self._observe_ego(ego)
@@ -233,7 +236,7 @@ class Tracker:
             moving = self.labeller.label(self.tracks, clusters.voxel_edge, pose[0:2, 3])
             # a part's motion is partly where the parting drew its edge: it may keep a label, not give one
             self.tracks.moving = moving & (self.tracks.moving | ~self.tracks.parted)
-        return obstacles_of(self.tracks, self.ego.velocity, clusters, ego)
+        return obstacles_of(self.tracks, self.ego.velocity, clusters, ego, self.faces)
 
     # ------------------------------------------------------------------ input
 

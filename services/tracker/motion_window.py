@@ -140,3 +140,24 @@ def _bounds(
         if along:
             along_out[i] = abs(speed_along) - k * np.sqrt(max(rss_along / max(dof, 1.0), floor_std**2) / sxx)
     return whole, along_out
+
+
+def line_velocity(
+    points: NDArray, times: NDArray, count: NDArray, min_faces: int, floor_std: float
+) -> tuple[NDArray, NDArray]:
+    """(n, 2) velocity of the least-squares line through each track's faces, and (n,) its standard error.
+
+    The standard error is nan where fewer than ``min_faces`` faces are held; the scatter is pooled
+    over both axes and never taken below ``floor_std`` (m), as in ``speed_bounds``.
+    """
+    size = points.shape[1]
+    held = (np.arange(size)[None, :] >= size - count[:, None]).astype(np.float64)
+    m = np.maximum(held.sum(axis=1), 1.0)
+    dt = (times - (held * times).sum(axis=1)[:, None] / m[:, None]) * held
+    sxx = np.maximum((dt * dt).sum(axis=1), 1e-12)
+    centre = (held[:, :, None] * points).sum(axis=1) / m[:, None]
+    slope = (dt[:, :, None] * (points - centre[:, None, :])).sum(axis=1) / sxx[:, None]
+    residual = (points - centre[:, None, :] - dt[:, :, None] * slope[:, None, :]) * held[:, :, None]
+    dof = np.maximum(m - 2.0, 1.0)
+    scatter = np.maximum((residual**2).sum(axis=(1, 2)) / (2.0 * dof), floor_std**2)
+    return slope, np.where(count >= min_faces, np.sqrt(scatter / sxx), np.nan)
