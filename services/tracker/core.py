@@ -42,6 +42,7 @@ from common.messages import Cluster, Clusters, EgoMotion, Obstacles
 from services.tracker import kalman, motion_window
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
 from services.tracker.clock import FrameClock
+from services.tracker.faces import turn_ends, turn_sides
 from services.tracker.fragments import APART_BY_BOX, Sight, Standing, claims, gather, stand_apart
 from services.tracker.jumps import Jumps
 from services.tracker.labelling import MotionLabeller
@@ -52,7 +53,7 @@ from services.tracker.observations import Observations, observe
 from services.tracker.parting import NO_PARTING, Parting, cut_by_view, part_covariance, part_tracked
 from services.tracker.queues import NO_COASTING, Coasting, advance, merged_away
 from services.tracker.report import FaceVelocity, obstacles_of
-from services.tracker.track import ACCEPTANCE, GHOST, TRACKED, TrackTable
+from services.tracker.track import ACCEPTANCE, GHOST, TRACKED, TrackTable, born
 
 NDArray = npt.NDArray[Any]
 
@@ -330,8 +331,8 @@ class Tracker:
         if len(rows) == 0:
             return
         t = self.tracks
-        self._turn_sides(rows, obs)
-        self._turn_ends(rows, obs)
+        turn_sides(t, rows, obs)
+        turn_ends(t, rows, obs)
         # a walker's or a pole's box changes with the fringe of stereo smear around it, which
         # hardly moves the median range of its points that a narrow cluster is followed at
         # (anchor.py): its extent change is no noise on that point (docs/results/tracking.md,
@@ -392,35 +393,6 @@ class Tracker:
         growth = (obs.extent - t.extent[rows])[:, 0:2].max(axis=1)
         return (growth > self.merge_growth_m) & (t.queue[rows] == TRACKED)
 
-    def _turn_sides(self, rows: NDArray, obs: Observations) -> None:
-        """Follow the side face now in view, shifting the state by that face's offset on this cluster."""
-        t = self.tracks
-        turned = np.flatnonzero(t.side[rows] != obs.side)
-        if len(turned) == 0:
-            return
-        rows_turned = rows[turned]
-        now = obs.anchors[turned, obs.side[turned]]
-        before = obs.anchors[turned, t.side[rows_turned]]
-        t.x[rows_turned, 0:3] += now - before
-        motion_window.shift(t.window, rows_turned, now - before)
-        motion_window.shift(t.window_far, rows_turned, now - before)
-        t.side[rows_turned] = obs.side[turned]
-
-    def _turn_ends(self, rows: NDArray, obs: Observations) -> None:
-        """Follow the far end of a cluster the image's side edge cuts, and the near end again once it does not.
-
-        The state shifts by the cluster's length, as for a side face (``_turn_sides``); the speed
-        windows keep both ends apart and need no shift.
-        """
-        t = self.tracks
-        turned = np.flatnonzero(t.end[rows] != obs.cut)
-        if len(turned) == 0:
-            return
-        rows_turned = rows[turned]
-        sign = np.where(obs.cut[turned], 1.0, -1.0)
-        t.x[rows_turned, 0:3] += sign[:, None] * obs.far[turned]
-        t.end[rows_turned] = obs.cut[turned]
-
     def _advance_queues(self, rows: NDArray, elapsed: int, piece_of: dict[int, Cluster], sight: Sight) -> None:
         seen = np.zeros(len(self.tracks), dtype=bool)
         seen[rows] = True
@@ -474,37 +446,4 @@ class Tracker:
         self.counters["tracks_born"] += n
         ids = np.arange(self._next_id, self._next_id + n, dtype=np.int64)
         self._next_id += n
-        window = np.zeros((n, motion_window.SIZE, 2))
-        window[:, -1] = obs.anchor[:, 0:2]
-        window_far = np.zeros((n, motion_window.SIZE, 2))
-        window_far[:, -1] = (obs.anchor + obs.far)[:, 0:2]
-        self.tracks.extend(
-            TrackTable(
-                ids=ids,
-                queue=np.zeros(n, dtype=np.int8),
-                x=np.hstack([obs.followed, np.zeros((n, 3))]),
-                p=self._initial_p(obs, r),
-                offset=obs.centroid - obs.followed,
-                side=obs.side.copy(),
-                end=obs.cut.copy(),
-                hits=np.ones(n, dtype=np.int64),
-                misses=np.zeros(n, dtype=np.int64),
-                age=np.ones(n, dtype=np.int64),
-                moving=np.zeros(n, dtype=bool),
-                nis=np.ones(n),
-                rgb=obs.rgb.copy(),
-                hsl=obs.hsl.copy(),
-                extent=obs.extent,
-                extent_slow=obs.extent,
-                density=obs.density.copy(),
-                volume=obs.volume.copy(),
-                centroid=obs.centroid.copy(),
-                bbox_min=obs.bbox_min.copy(),
-                bbox_max=obs.bbox_max.copy(),
-                window=window,
-                window_far=window_far,
-                window_t=np.full((n, motion_window.SIZE), self._clock),
-                window_n=np.ones(n, dtype=np.int64),
-                parted=parted.copy(),
-            )
-        )
+        self.tracks.extend(born(ids, obs, self._initial_p(obs, r), self._clock, parted))

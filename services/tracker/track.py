@@ -15,6 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from services.tracker.motion_window import SIZE as WINDOW
+from services.tracker.observations import Observations
 
 NDArray = npt.NDArray[Any]
 
@@ -71,3 +72,44 @@ class TrackTable:
         """Append the rows of ``other``."""
         for f in dataclasses.fields(self):
             setattr(self, f.name, np.concatenate([getattr(self, f.name), getattr(other, f.name)]))
+
+
+def born(ids: NDArray, obs: Observations, p: NDArray, clock: float, parted: NDArray) -> TrackTable:
+    """New acceptance tracks, one per observation: at rest at the point followed, covariance ``p``.
+
+    Each speed window starts with this frame's face at time ``clock``; ``parted`` says which were
+    measured on a part of a shared cluster (parting.py).
+    """
+    n = len(obs)
+    window = np.zeros((n, WINDOW, 2))
+    window[:, -1] = obs.anchor[:, 0:2]
+    window_far = np.zeros((n, WINDOW, 2))
+    window_far[:, -1] = (obs.anchor + obs.far)[:, 0:2]
+    return TrackTable(
+        ids=ids,
+        queue=np.zeros(n, dtype=np.int8),
+        x=np.hstack([obs.followed, np.zeros((n, 3))]),
+        p=p,
+        offset=obs.centroid - obs.followed,
+        side=obs.side.copy(),
+        end=obs.cut.copy(),
+        hits=np.ones(n, dtype=np.int64),
+        misses=np.zeros(n, dtype=np.int64),
+        age=np.ones(n, dtype=np.int64),
+        moving=np.zeros(n, dtype=bool),
+        nis=np.ones(n),
+        rgb=obs.rgb.copy(),
+        hsl=obs.hsl.copy(),
+        extent=obs.extent,
+        extent_slow=obs.extent,
+        density=obs.density.copy(),
+        volume=obs.volume.copy(),
+        centroid=obs.centroid.copy(),
+        bbox_min=obs.bbox_min.copy(),
+        bbox_max=obs.bbox_max.copy(),
+        window=window,
+        window_far=window_far,
+        window_t=np.full((n, WINDOW), clock),
+        window_n=np.ones(n, dtype=np.int64),
+        parted=parted.copy(),
+    )
