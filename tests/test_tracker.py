@@ -538,7 +538,7 @@ def test_the_faces_are_the_percentiles_of_each_clusters_own_voxels() -> None:
     # the compiled pass against the definition, cluster by cluster, under a turned and moved
     # vehicle: the near and far faces (5 / 95 % of the voxels in vehicle x), the side faces (in
     # y), and for a narrow cluster, narrow by the 5-95 % of its points across the line of sight,
-    # the median range of its points; a cluster without counts weighs its voxels alike
+    # the interquartile mean range of its points; a cluster without counts weighs its voxels alike
     rng = np.random.default_rng(3)
     yaw = 0.4
     pose = np.eye(4)
@@ -562,6 +562,14 @@ def test_the_faces_are_the_percentiles_of_each_clusters_own_voxels() -> None:
         cum = np.cumsum(w[order])
         return float(values[order][min(int(np.searchsorted(cum, share * cum[-1])), len(values) - 1)])
 
+    def interquartile_mean(values: np.ndarray, w: np.ndarray) -> float:
+        # each value's weight clipped to the part of the running total between its quartiles
+        order = np.argsort(values, kind="stable")
+        upper = np.cumsum(w[order])
+        lower = upper - w[order]
+        inside = np.clip(upper, 0.25 * upper[-1], 0.75 * upper[-1]) - np.clip(lower, 0.25 * upper[-1], 0.75 * upper[-1])
+        return float((inside * values[order]).sum() / inside.sum())
+
     rotation, origin = pose[0:3, 0:3], pose[0:3, 3]
     assert 3 <= narrow.sum() <= len(clusters) - 3, narrow  # both kinds are tested
     for k, c in enumerate(clusters):
@@ -575,12 +583,31 @@ def test_the_faces_are_the_percentiles_of_each_clusters_own_voxels() -> None:
         thin = by_points(across, w, 0.95) - by_points(across, w, 0.05) < anchor_module.NARROW_M
         long_along = y_hi - y_lo < anchor_module.NARROW_M and far_x - near_x >= anchor_module.ALONG_ROAD_M
         assert narrow[k] == (len(c.voxel_points) > 0 and (thin or long_along))
-        x = by_points(local[:, 0], w, 0.5) if narrow[k] else near_x
+        x = interquartile_mean(local[:, 0], w) if narrow[k] else near_x
         z = float((c.centroid - origin) @ rotation[:, 2])
         seen = (points[k] - origin) @ rotation  # the three sides in the vehicle frame
         assert seen == pytest.approx(np.array([[x, y_lo, z], [x, 0.5 * (y_lo + y_hi), z], [x, y_hi, z]]), abs=1e-9)
         assert far[k] == pytest.approx((far_x - x) * rotation[:, 0], abs=1e-9)
         assert side[k] == (2 if y_hi < 0 else 0 if y_lo > 0 else 1)
+
+
+def test_a_narrow_clusters_range_moves_with_its_points_not_a_voxel_at_a_time() -> None:
+    # a post's points pass from one layer of voxels to the next, a tenth of them a frame: the
+    # middle half of their ranges then moves by at most 5 cm a frame over five frames, where their
+    # median jumped the whole voxel (25 cm) in one
+    post = surface((20.0, -0.25, 0.0), (20.5, 0.25, 1.5))
+    near = (post.voxels[:, 0] + 0.5) * EDGE < 20.25
+    xs = []
+    for k in range(11):
+        share = k / 10.0
+        points = np.where(near, np.round(20 * (1 - share)), np.round(20 * share)).astype(np.int32)
+        c = Cluster(**{**vars(post), "voxel_points": points})
+        at, _, _, narrow, _ = anchors([c], np.array([c.centroid]), np.eye(4), EDGE)
+        assert narrow[0]
+        xs.append(float(at[0, 1, 0]))
+    steps = np.diff(xs)
+    assert xs[0] == pytest.approx(20.125, abs=1e-3) and xs[-1] == pytest.approx(20.375, abs=1e-3), xs
+    assert np.all(steps > -1e-9) and steps.max() < 0.051 and (steps > 0.01).sum() >= 4, steps
 
 
 def smeared(
@@ -632,13 +659,15 @@ def test_narrow_is_measured_across_the_line_of_sight() -> None:
     assert points[2, 1, 0] == pytest.approx(17.125, abs=0.3)  # the hedge's middle, not its cut near end
 
 
-def test_a_narrow_cluster_is_followed_at_its_points_median_range_a_wide_one_at_its_near_face() -> None:
+def test_a_narrow_cluster_is_followed_at_its_points_middle_range_a_wide_one_at_its_near_face() -> None:
     walker = smeared((20.0, -0.25, 0.0), (20.5, 0.25, 1.75), core_points=60)  # 0.5 m wide, 3 % of points in the fringe
     car = smeared((20.0, -4.0, 0.25), (24.0, -1.5, 1.5), core_points=60)  # 2.5 m wide
     old = smeared((20.0, -0.25, 0.0), (20.5, 0.25, 1.75), core_points=60, fringe_points=None)
     clusters = [walker, car, old]
     points, _, far, _, _ = anchors(clusters, np.array([c.centroid for c in clusters]), np.eye(4), EDGE)
-    assert points[0, 1, 0] == pytest.approx(20.125, abs=0.01)  # the core's first layer holds the median point
+    # the middle half of the points lies in the core's two layers (20.125 and 20.375 m), 26.6 % of
+    # them in the first: their mean is 20.242 m, the core's middle less a centimetre of fringe
+    assert points[0, 1, 0] == pytest.approx(20.242, abs=0.005)
     assert points[1, 2, 0] == pytest.approx(19.125, abs=0.01)  # the near face, fringe and all
     assert points[2, 1, 0] == pytest.approx(19.125, abs=0.01)  # without counts: the near face, as before
     assert points[0, 1, 0] + far[0, 0] == pytest.approx(20.375, abs=0.01)  # the far end stays the far end
@@ -742,7 +771,7 @@ def walker_trailing_a_fringe(k: int, x0: float, speed: float) -> Cluster:
 
 def test_a_narrow_walker_trailing_a_swinging_fringe_is_moving_and_a_post_with_one_is_not() -> None:
     # his box swings by up to 2.75 m along the line of sight, which would drag a near face; he is
-    # followed at his points' median range, which the fringe's few points hardly move, so only
+    # followed at his points' middle range, which the fringe's few points hardly move, so only
     # growth across the line of sight is taken as slide for a narrow track
     labels = {}
     for name, speed in (("walker", 1.4), ("post", 0.0)):

@@ -18,6 +18,8 @@ and the fringe's depth changes with range: a walker coming towards the camera at
 median range of this frame's points (the mapper counts them per voxel), which the fringe's few
 points hardly move. Moving TP / FP went 68.9 / 2.0 -> 71.5 / 2.2 % on the eight tuning runs and
 64.7 / 3.6 -> 66.7 / 1.5 % on the eight held-out ones (docs/results/tracking.md, "Session 14").
+Since session 38 it is the interquartile mean of those ranges (``RANGE_TRIM``), which moves as the
+points do where the median jumps a voxel at a time.
 Narrow is measured across the line of sight: sideways, an oncoming car seen obliquely was narrow
 too, and the median of its points slid back along its side as it neared ("Session 22").
 
@@ -50,12 +52,19 @@ NDArray = npt.NDArray[Any]
 #: percentile of the voxels taken as a face (low end of the range; the high end is 100 minus it).
 FACE_PERCENTILE: float = 5.0
 #: a cluster narrower than this across the line of sight (m, 5-95 % of its points) is followed at
-#: the median range of its points instead of its near face (measured 1.3, 2.0, 2.5).
+#: the middle range of its points (``RANGE_TRIM``) instead of its near face (measured 1.3, 2.0, 2.5).
 NARROW_M: float = 2.0
 #: ... and so is one this narrow sideways and at least this long (m, 5-95 % of its voxels in
 #: vehicle y and x): longer than any vehicle, a structure along the road, whose near end is where the
 #: image's side edge cuts it and slides with the vehicle (measured 4.5, 6, 8: the same).
 ALONG_ROAD_M: float = 6.0
+#: a narrow cluster's range is the mean of its points' ranges between these weighted quantiles
+#: (0.25: the interquartile mean; 0 would be the median). The median of voxel cell centres moves in
+#: whole voxels, 0.25 m a frame (2.5 m/s at 10 Hz) where a walker moves 0.15 m; the interquartile
+#: mean moves as the points do. Tracker replays (docs/results/tracking.md, "Session 38"): held-out
+#: moving TP / FP frames 1287 / 40 -> 1302 / 39, tuning 1325 / 38 -> 1330 / 31, fresh 767 / 16 ->
+#: 765 / 14 (measured 0.10 and 0.40: 1299 / 45 and 1294 / 36 held out).
+RANGE_TRIM: float = 0.25
 
 
 def _stacked(clusters: list[Cluster]) -> tuple[NDArray, NDArray, NDArray, NDArray]:
@@ -115,6 +124,29 @@ def _pick(
 
 
 @numba.njit(cache=True)
+def _trimmed_mean(values: NDArray, weights: NDArray, trim: float) -> float:
+    """The weighted mean of ``values`` between the weighted ``trim`` and ``1 - trim`` quantiles.
+
+    A value straddling a quantile counts with the part of its weight inside, so the mean moves
+    smoothly as weight shifts from one voxel to the next, where a quantile jumps a whole voxel.
+    """
+    order = np.argsort(values)
+    total = 0.0
+    for i in range(values.shape[0]):
+        total += weights[i]
+    lo, hi = trim * total, (1.0 - trim) * total
+    acc, num, den = 0.0, 0.0, 0.0
+    for i in order:
+        a, b = acc, acc + weights[i]
+        acc = b
+        part = min(b, hi) - max(a, lo)
+        if part > 0.0:
+            num += part * values[i]
+            den += part
+    return num / den if den > 0.0 else values[order[values.shape[0] // 2]]
+
+
+@numba.njit(cache=True)
 def _place(
     voxels: NDArray,
     counts: NDArray,
@@ -128,6 +160,7 @@ def _place(
     along_road_m: float,
     view: NDArray,
     view_margin: float,
+    trim: float,
 ) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
     """``anchors`` for clusters with voxels under a finite pose, one cluster at a time.
 
@@ -176,6 +209,8 @@ def _place(
         near_x, far_x, range_x, y_lo, y_hi = xs[0], xs[1], xs[2], ys[0], ys[1]
         along_road = (y_hi - y_lo < narrow_m) and (far_x - near_x >= along_road_m)
         narrow[c] = counted[c] and ((spread[1] - spread[0] < narrow_m) or along_road)
+        if narrow[c] and trim > 0.0:
+            range_x = _trimmed_mean(x, w, trim)
         front = range_x if narrow[c] else near_x
         z = rel[0] * r[0, 2] + rel[1] * r[1, 2] + rel[2] * r[2, 2]
         for s, side_y in enumerate((y_lo, 0.5 * (y_lo + y_hi), y_hi)):
@@ -209,7 +244,7 @@ def anchors(
     (n,) and which are cut by the image's side edge (n,; ``view`` as ``Clusters.view``).
 
     Side 0 takes the low-y face (object left of the line of sight), 1 the middle (straddling it),
-    2 the high-y face (right of it); x is the near face (a narrow cluster's median range) and z
+    2 the high-y face (right of it); x is the near face (a narrow cluster's interquartile mean range) and z
     the centroid's in all three. A cluster without voxels, or a frame without a pose, keeps its
     centroid for every side. The far-end shift moves that point to the far end along the
     vehicle's x (the high percentile), the other end of the object: a rigid object's two ends move
@@ -242,4 +277,5 @@ def anchors(
         ALONG_ROAD_M,
         seen,
         float(view_margin),
+        RANGE_TRIM,
     )

@@ -334,7 +334,7 @@ class Tracker:
         turn_sides(t, rows, obs)
         turn_ends(t, rows, obs)
         # a walker's or a pole's box changes with the fringe of stereo smear around it, which
-        # hardly moves the median range of its points that a narrow cluster is followed at
+        # hardly moves the middle range of its points that a narrow cluster is followed at
         # (anchor.py): its extent change is no noise on that point (docs/results/tracking.md,
         # "Session 20"; without the upright test KITTI's roadside structures were called moving)
         extent_before = t.bbox_max[rows] - t.bbox_min[rows]

@@ -13,7 +13,7 @@ is not believed until the faces move too. Four refinements, each measured on tra
 - a compact upright track is confirmed by its near face alone: its far end is the far fringe of
   its smear, which swings by metres from frame to frame ("Session 21");
 - a narrow track's box growing along the line of sight does not count as slide: that growth is
-  the smear's fringe, and the point followed is its points' median range ("Session 35").
+  the smear's fringe, and the point followed is its points' middle range ("Session 35").
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ class MotionLabeller:
             )
             confirm, across_confirm = self.window_bounds(t, k, a.normal)
             narrow = a.width < self.narrow_across_m
-            # a narrow track is followed at its points' median range (anchor.py), which the fringe
+            # a narrow track is followed at its points' middle range (anchor.py), which the fringe
             # its box grows by along the line of sight hardly moves: only growth across it slides it
             slide = np.where(narrow, a.slide, slide)
             evidence = np.minimum(speed - k * sigma - slide, confirm)

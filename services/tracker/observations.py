@@ -24,7 +24,7 @@ class Observations:
     anchors: NDArray  # (m, 3, 3) the points the filter may follow, one per side (anchor.py)
     side: NDArray  # (m,) the side in view
     far: NDArray  # (m, 3) from the near end to the far end of the cluster along the vehicle's x
-    narrow: NDArray  # (m,) followed at the median range of its points, not its near face (anchor.py)
+    narrow: NDArray  # (m,) followed at the middle range of its points, not its near face (anchor.py)
     cut: NDArray  # (m,) its near end is where the image's side edge cuts it: followed at its far end
     bbox_min: NDArray
     bbox_max: NDArray
