@@ -96,11 +96,15 @@ def _pick(
     by_voxels: NDArray,
     by_points: NDArray,
     out: NDArray,
+    trim: float,
 ) -> float:
     """One cluster's percentiles of ``values`` into ``out``, by voxels then by points; the points summed so far.
 
     By voxels, the first value (ascending) whose running count reaches the share; by points, the
-    first whose running points do. ``running`` carries the points of the clusters before this one,
+    first whose running points do. With ``trim`` > 0, the last slot of ``out`` takes the mean of the
+    values between the points' ``trim`` and ``1 - trim`` shares, each value counted with the part of
+    its points inside: it moves smoothly as points shift from one voxel to the next, where a
+    percentile jumps a whole voxel. ``running`` carries the points of the clusters before this one,
     so the sums are those of one cumulative sum over the frame, as in the all-numpy form this
     replaced (the same figures on every replay, docs/results/tracking.md, "Session 30").
     """
@@ -120,30 +124,15 @@ def _pick(
         for j, share in enumerate(by_points):
             k = np.searchsorted(cum, before + share * total)
             out[by_voxels.shape[0] + j] = values[order[min(max(k, 0), m - 1)]]
+        if trim > 0.0:
+            lo, hi, num, den = before + trim * total, before + (1.0 - trim) * total, 0.0, 0.0
+            for i in range(m):
+                part = min(cum[i], hi) - max(cum[i] - weights[order[i]], lo)
+                if part > 0.0:
+                    num += part * values[order[i]]
+                    den += part
+            out[by_voxels.shape[0] + by_points.shape[0]] = num / den if den > 0.0 else values[order[m // 2]]
     return running
-
-
-@numba.njit(cache=True)
-def _trimmed_mean(values: NDArray, weights: NDArray, trim: float) -> float:
-    """The weighted mean of ``values`` between the weighted ``trim`` and ``1 - trim`` quantiles.
-
-    A value straddling a quantile counts with the part of its weight inside, so the mean moves
-    smoothly as weight shifts from one voxel to the next, where a quantile jumps a whole voxel.
-    """
-    order = np.argsort(values)
-    total = 0.0
-    for i in range(values.shape[0]):
-        total += weights[i]
-    lo, hi = trim * total, (1.0 - trim) * total
-    acc, num, den = 0.0, 0.0, 0.0
-    for i in order:
-        a, b = acc, acc + weights[i]
-        acc = b
-        part = min(b, hi) - max(a, lo)
-        if part > 0.0:
-            num += part * values[i]
-            den += part
-    return num / den if den > 0.0 else values[order[values.shape[0] // 2]]
 
 
 @numba.njit(cache=True)
@@ -175,7 +164,7 @@ def _place(
     narrow = np.zeros(n, dtype=np.bool_)
     cut = np.zeros(n, dtype=np.bool_)
     faces, median, tails, none = np.array([q, 1.0 - q]), np.array([0.5]), np.array([0.05, 0.95]), np.zeros(0)
-    xs, ys, spread = np.empty(3), np.empty(2), np.empty(2)
+    xs, ys, spread = np.empty(4), np.empty(2), np.empty(2)
     r, o = pose[0:3, 0:3], pose[0:3, 3]
     run_x, run_across = 0.0, 0.0
     start = 0
@@ -202,15 +191,15 @@ def _place(
             y[i] = w0 * r[0, 1] + w1 * r[1, 1] + w2 * r[2, 1]
             across[i] = ray_x * y[i] - ray_y * x[i]
         w = weights[start : start + m]
-        run_x = _pick(x, w, start, run_x, faces, median, xs)
-        _pick(y, w, start, 0.0, faces, none, ys)
-        run_across = _pick(across, w, start, run_across, none, tails, spread)
+        run_x = _pick(x, w, start, run_x, faces, median, xs, trim)
+        _pick(y, w, start, 0.0, faces, none, ys, 0.0)
+        run_across = _pick(across, w, start, run_across, none, tails, spread, 0.0)
         start += m
         near_x, far_x, range_x, y_lo, y_hi = xs[0], xs[1], xs[2], ys[0], ys[1]
         along_road = (y_hi - y_lo < narrow_m) and (far_x - near_x >= along_road_m)
         narrow[c] = counted[c] and ((spread[1] - spread[0] < narrow_m) or along_road)
-        if narrow[c] and trim > 0.0:
-            range_x = _trimmed_mean(x, w, trim)
+        if trim > 0.0:
+            range_x = xs[3]
         front = range_x if narrow[c] else near_x
         z = rel[0] * r[0, 2] + rel[1] * r[1, 2] + rel[2] * r[2, 2]
         for s, side_y in enumerate((y_lo, 0.5 * (y_lo + y_hi), y_hi)):
