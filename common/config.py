@@ -233,6 +233,7 @@ class TrackerConfig:
     reshape_m: float = 3.0  # box grown or shrunk by more (m, x or y): a not-yet-moving track's speed window restarts
     narrow_across_m: float = 2.0  # narrower across its line of sight (m): labelled by its speed across if surer; 0: off
     # ... and only its growth across the line of sight counts as slide (labelling.py)
+    narrow_by_points: bool = True  # ... narrow by its points (width across, core's depth along), not its box
     revive_restart_m: float = 1.0  # a ghost found this far (m) from its prediction restarts its speed window; 0: off
     merge_growth_m: float = 2.0  # cluster wider by more (m, x or y) than its track's smoothed extent: box kept; 0: off
     coast_merged_frames: int = 3  # an upright track unseen inside a seen tracked box stays tracked this long; 0: off

@@ -527,7 +527,7 @@ def of_voxels(voxels: np.ndarray, cid: int = 0, rgb: tuple[float, float, float] 
 def test_anchor_stays_on_the_faces_in_view_while_the_far_side_grows() -> None:
     # a parked car right of the road: its rear (near x) and its road side (high y) face the camera
     short, long = surface((20.0, -4.0, 0.25), (21.0, -2.25, 1.5)), surface((20.0, -4.0, 0.25), (24.5, -2.25, 1.5))
-    points, side, _, _, _ = anchors([short, long], np.array([short.centroid, long.centroid]), np.eye(4), EDGE)
+    points, side, _, _, _, _ = anchors([short, long], np.array([short.centroid, long.centroid]), np.eye(4), EDGE)
     assert side.tolist() == [2, 2]
     a, b = points[0, 2], points[1, 2]
     assert abs(a[0] - b[0]) < 0.3 and abs(a[1] - b[1]) < 0.01  # the centroids are 1.75 m apart
@@ -538,7 +538,8 @@ def test_the_faces_are_the_percentiles_of_each_clusters_own_voxels() -> None:
     # the compiled pass against the definition, cluster by cluster, under a turned and moved
     # vehicle: the near and far faces (5 / 95 % of the voxels in vehicle x), the side faces (in
     # y), and for a narrow cluster, narrow by the 5-95 % of its points across the line of sight,
-    # the interquartile mean range of its points; a cluster without counts weighs its voxels alike
+    # the interquartile mean range of its points; a cluster without counts weighs its voxels alike;
+    # and how wide its points are across the line of sight and, if narrow, how deep along it
     rng = np.random.default_rng(3)
     yaw = 0.4
     pose = np.eye(4)
@@ -552,7 +553,7 @@ def test_the_faces_are_the_percentiles_of_each_clusters_own_voxels() -> None:
         if k % 4 != 3:
             c = dataclasses.replace(c, voxel_points=rng.integers(0, 30, c.voxel_count).astype(np.int32))
         clusters.append(c)
-    points, side, far, narrow, _ = anchors(clusters, np.array([c.centroid for c in clusters]), pose, EDGE)
+    points, side, far, narrow, _, spread = anchors(clusters, np.array([c.centroid for c in clusters]), pose, EDGE)
 
     def by_count(values: np.ndarray, share: float) -> float:
         return float(np.sort(values)[max(int(np.ceil(share * len(values))) - 1, 0)])
@@ -580,7 +581,15 @@ def test_the_faces_are_the_percentiles_of_each_clusters_own_voxels() -> None:
         across = ray[0] * local[:, 1] - ray[1] * local[:, 0]
         near_x, far_x = by_count(local[:, 0], 0.05), by_count(local[:, 0], 0.95)
         y_lo, y_hi = by_count(local[:, 1], 0.05), by_count(local[:, 1], 0.95)
-        thin = by_points(across, w, 0.95) - by_points(across, w, 0.05) < anchor_module.NARROW_M
+        width = by_points(across, w, 0.95) - by_points(across, w, 0.05)
+        thin = width < anchor_module.NARROW_M
+        assert spread[k, 0] == pytest.approx(width, abs=1e-9)
+        if thin:  # the middle half's depth along the line of sight, binned an eighth of a voxel apart
+            along = ray[0] * local[:, 0] + ray[1] * local[:, 1]
+            depth = by_points(along, w, 0.75) - by_points(along, w, 0.25)
+            assert spread[k, 1] == pytest.approx(depth, abs=EDGE / 4), (k, spread[k], depth)
+        else:
+            assert np.isnan(spread[k, 1])
         long_along = y_hi - y_lo < anchor_module.NARROW_M and far_x - near_x >= anchor_module.ALONG_ROAD_M
         assert narrow[k] == (len(c.voxel_points) > 0 and (thin or long_along))
         x = interquartile_mean(local[:, 0], w) if narrow[k] else near_x
@@ -602,7 +611,7 @@ def test_a_narrow_clusters_range_moves_with_its_points_not_a_voxel_at_a_time() -
         share = k / 10.0
         points = np.where(near, np.round(20 * (1 - share)), np.round(20 * share)).astype(np.int32)
         c = Cluster(**{**vars(post), "voxel_points": points})
-        at, _, _, narrow, _ = anchors([c], np.array([c.centroid]), np.eye(4), EDGE)
+        at, _, _, narrow, _, _ = anchors([c], np.array([c.centroid]), np.eye(4), EDGE)
         assert narrow[0]
         xs.append(float(at[0, 1, 0]))
     steps = np.diff(xs)
@@ -653,7 +662,7 @@ def test_narrow_is_measured_across_the_line_of_sight() -> None:
     # a hedge along the right edge of the road, 10 m long: its near end is where the image's side cuts it
     hedge = counted(box_voxels((12.0, -7.5, 0.0), (22.0, -6.75, 1.5)))
     clusters = [car, walker, hedge]
-    points, _, _, narrow, _ = anchors(clusters, np.array([c.centroid for c in clusters]), np.eye(4), EDGE)
+    points, _, _, narrow, _, _ = anchors(clusters, np.array([c.centroid for c in clusters]), np.eye(4), EDGE)
     assert narrow.tolist() == [False, True, True]
     assert points[0, 0, 0] == pytest.approx(15.125, abs=0.01)  # the car's front, not its side's middle
     assert points[2, 1, 0] == pytest.approx(17.125, abs=0.3)  # the hedge's middle, not its cut near end
@@ -664,7 +673,7 @@ def test_a_narrow_cluster_is_followed_at_its_points_middle_range_a_wide_one_at_i
     car = smeared((20.0, -4.0, 0.25), (24.0, -1.5, 1.5), core_points=60)  # 2.5 m wide
     old = smeared((20.0, -0.25, 0.0), (20.5, 0.25, 1.75), core_points=60, fringe_points=None)
     clusters = [walker, car, old]
-    points, _, far, _, _ = anchors(clusters, np.array([c.centroid for c in clusters]), np.eye(4), EDGE)
+    points, _, far, _, _, _ = anchors(clusters, np.array([c.centroid for c in clusters]), np.eye(4), EDGE)
     # the middle half of the points lies in the core's two layers (20.125 and 20.375 m), 26.6 % of
     # them in the first: their mean is 20.242 m, the core's middle less a centimetre of fringe
     assert points[0, 1, 0] == pytest.approx(20.242, abs=0.005)
@@ -783,6 +792,43 @@ def test_a_narrow_walker_trailing_a_swinging_fringe_is_moving_and_a_post_with_on
     assert not any(labels["post"]), labels["post"]
     # 20 of 25 frames from frame 5 on; with the fringe taken as slide, 14 from frame 7, with gaps
     assert labels["walker"].index(True) <= 6 and sum(labels["walker"]) >= 18, labels["walker"]
+
+
+def walker_crossing_an_oblique_ray(k: int, speed: float, bearing_deg: float = 20.0, r0: float = 18.0) -> Cluster:
+    """A walker ``bearing_deg`` off the vehicle's axis crossing his line of sight at ``speed``, trailed along
+    that line by a fringe of stray voxels swinging between 0.5 and 3.5 m long; dense points on him."""
+    u = np.array([np.cos(np.radians(bearing_deg)), np.sin(np.radians(bearing_deg)), 0.0])
+    at = u * r0 + np.array([-u[1], u[0], 0.0]) * speed * 0.1 * k
+    core = box_voxels((at[0] - 0.25, at[1] - 0.25, 0.0), (at[0] + 0.25, at[1] + 0.25, 1.75))
+    reach = np.arange(0.5, 1.0 + 3.0 * abs(np.sin(0.5 * k)), EDGE / 2)
+    trail = at[None, :] + reach[:, None] * (at / np.linalg.norm(at))[None, :]
+    fringe = np.unique(
+        np.concatenate([np.floor(np.column_stack([trail[:, 0:2], np.full(len(reach), z)]) / EDGE) for z in (0.6, 0.9)]),
+        axis=0,
+    ).astype(np.int32)
+    fringe = fringe[~(fringe[:, None, :] == core[None, :, :]).all(axis=2).any(axis=1)]
+    c = of_voxels(np.concatenate([core, fringe]), rgb=(0.2, 0.6, 0.2))
+    points = np.concatenate([np.full(len(core), 20, np.int32), np.ones(len(fringe), np.int32)])
+    return Cluster(**{**vars(c), "voxel_points": points})
+
+
+def test_a_walker_on_an_oblique_ray_is_narrow_by_his_points_not_his_box() -> None:
+    # 20 degrees off the axis, his smear along the ray makes his box 3-4 m long in x and 1.5-2 m in
+    # y: 2-3 m across his line of sight, so by his box he is no narrow track, his motion across it
+    # is not looked at and the box's swing counts as slide. His points are 0.5 m wide across it, and
+    # their middle half is 0.5 m deep along it: by them he is narrow, and called moving.
+    labels = {}
+    for by_points in (True, False):
+        for name, speed in (("walker", 1.4), ("post", 0.0)):
+            tracker = new_tracker(narrow_by_points=by_points)
+            labels[by_points, name] = [
+                any(o.moving for o in step(tracker, k, [walker_crossing_an_oblique_ray(k, speed)]).obstacles)
+                for k in range(25)
+            ]
+    assert not any(labels[True, "post"]) and not any(labels[False, "post"])
+    # measured: 16 of 25 frames from frame 6 on by his points, 5 by his box
+    assert labels[True, "walker"].index(True) <= 7 and sum(labels[True, "walker"]) >= 13, labels[True, "walker"]
+    assert sum(labels[False, "walker"]) <= 8, labels[False, "walker"]
 
 
 def test_a_speed_bound_along_a_direction_ignores_the_scatter_across_it() -> None:

@@ -136,6 +136,34 @@ def _pick(
 
 
 @numba.njit(cache=True)
+def _middle_half(values: NDArray, weights: NDArray, step: float) -> float:
+    """How far apart the weighted 25 % and 75 % of ``values`` lie, to within ``step``, without sorting.
+
+    The values are binned ``step`` apart (coarser if that would take over 1024 bins) and each
+    quantile read off the running weights by linear interpolation within its bin: a sort of every
+    narrow cluster's voxels cost the tracker 5 % of its time.
+    """
+    lo, hi = values.min(), values.max()
+    bins = min(int((hi - lo) / step) + 1, 1024)
+    width = max((hi - lo) / bins, 1e-9)
+    mass = np.zeros(bins)
+    for i in range(values.shape[0]):
+        mass[min(int((values[i] - lo) / width), bins - 1)] += weights[i]
+    total = mass.sum()
+    ends = np.empty(2)
+    for j, share in enumerate((0.25, 0.75)):
+        target, running = share * total, 0.0
+        for b in range(bins):
+            if running + mass[b] >= target and mass[b] > 0.0:
+                ends[j] = lo + width * (b + (target - running) / mass[b])
+                break
+            running += mass[b]
+        else:
+            ends[j] = hi
+    return ends[1] - ends[0]
+
+
+@numba.njit(cache=True)
 def _place(
     voxels: NDArray,
     counts: NDArray,
@@ -150,7 +178,7 @@ def _place(
     view: NDArray,
     view_margin: float,
     trim: float,
-) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
+) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, NDArray]:
     """``anchors`` for clusters with voxels under a finite pose, one cluster at a time.
 
     Each cluster's own voxels are sorted on their own: in numpy, sorting all the frame's voxels
@@ -163,6 +191,7 @@ def _place(
     far = np.zeros((n, 3))
     narrow = np.zeros(n, dtype=np.bool_)
     cut = np.zeros(n, dtype=np.bool_)
+    width = np.full((n, 2), np.nan)
     faces, median, tails, none = np.array([q, 1.0 - q]), np.array([0.5]), np.array([0.05, 0.95]), np.zeros(0)
     xs, ys, spread = np.empty(4), np.empty(2), np.empty(2)
     r, o = pose[0:3, 0:3], pose[0:3, 3]
@@ -197,7 +226,12 @@ def _place(
         start += m
         near_x, far_x, range_x, y_lo, y_hi = xs[0], xs[1], xs[2], ys[0], ys[1]
         along_road = (y_hi - y_lo < narrow_m) and (far_x - near_x >= along_road_m)
-        narrow[c] = counted[c] and ((spread[1] - spread[0] < narrow_m) or along_road)
+        width[c, 0] = spread[1] - spread[0]
+        narrow[c] = counted[c] and ((width[c, 0] < narrow_m) or along_road)
+        if width[c, 0] < narrow_m:
+            # how deep its points' middle half lies along the line of sight: a walker's core is
+            # compact however long his smear's fringe; a wall seen edge-on is deep throughout
+            width[c, 1] = _middle_half(ray_x * x + ray_y * y, w, 0.125 * edge)
         if trim > 0.0:
             range_x = xs[3]
         front = range_x if narrow[c] else near_x
@@ -214,7 +248,7 @@ def _place(
             dx = near_x - view[0]
             inside = min(view[2] * dx - (y_hi - view[1]), (y_lo - view[1]) - view[3] * dx)
             cut[c] = not narrow[c] and inside <= view_margin
-    return out, side, far, narrow, cut
+    return out, side, far, narrow, cut, width
 
 
 #: what ``_place`` is given without the mapper's image edges: slopes that fail its test.
@@ -228,9 +262,11 @@ def anchors(
     edge: float,
     view: NDArray | None = None,
     view_margin: float = 0.0,
-) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
+) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, NDArray]:
     """World points (n, 3 sides, 3), the side in view (n,), the far-end shift (n, 3), which are narrow
-    (n,) and which are cut by the image's side edge (n,; ``view`` as ``Clusters.view``).
+    (n,), which are cut by the image's side edge (n,; ``view`` as ``Clusters.view``) and how wide
+    their points are across the line of sight and, where that is under ``NARROW_M``, how deep their
+    middle half lies along it (n, 2, m: 5-95 % and 25-75 % of the points; NaN where unknown).
 
     Side 0 takes the low-y face (object left of the line of sight), 1 the middle (straddling it),
     2 the high-y face (right of it); x is the near face (a narrow cluster's interquartile mean range) and z
@@ -249,6 +285,7 @@ def anchors(
             np.zeros((n, 3)),
             np.zeros(n, dtype=bool),
             np.zeros(n, dtype=bool),
+            np.full((n, 2), np.nan),
         )
     voxels, counts, weights, counted = _stacked(clusters)
     # copies: a message decoded off the bus holds read-only arrays, which numba would compile for again

@@ -112,6 +112,7 @@ class Tracker:
         left_behind: LeftBehind | None = None,
         parting: Parting = NO_PARTING,
         velocity_faces: int = 0,
+        narrow_by_points: bool = False,
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -143,7 +144,14 @@ class Tracker:
             None if upright_accel_std is None else np.array([upright_accel_std, upright_accel_std, self.accel_std[2]])
         )
         self.labeller = MotionLabeller(
-            hysteresis, standing, measurement_std, frame_period_s, narrow_across_m, upright_sigma_k, near_only_m
+            hysteresis,
+            standing,
+            measurement_std,
+            frame_period_s,
+            narrow_across_m,
+            upright_sigma_k,
+            near_only_m,
+            narrow_by_points,
         )
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.tracks = TrackTable()
@@ -196,6 +204,7 @@ class Tracker:
                 t.part_standing_only,
             ),
             velocity_faces=t.velocity_faces,
+            narrow_by_points=t.narrow_by_points,
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
@@ -383,6 +392,12 @@ class Tracker:
         t.hsl[rows, 0] = (t.hsl[rows, 0] + a * hue_step) % 1.0
         t.extent[rows] += a * (obs.extent - t.extent[rows])
         t.extent_slow[rows] += SLIDE_SMOOTHING * (obs.extent - t.extent_slow[rows])
+        now, slow = obs.across, t.across_slow[rows]
+        t.across[rows] = now
+        t.depth[rows] = obs.depth
+        t.across_slow[rows] = np.where(
+            np.isnan(slow), now, np.where(np.isnan(now), slow, slow + SLIDE_SMOOTHING * (now - slow))
+        )
         t.density[rows] += a * (obs.density - t.density[rows])
 
     def _swallowed(self, rows: NDArray, obs: Observations) -> NDArray:

@@ -13,11 +13,16 @@ is not believed until the faces move too. Four refinements, each measured on tra
 - a compact upright track is confirmed by its near face alone: its far end is the far fringe of
   its smear, which swings by metres from frame to frame ("Session 21");
 - a narrow track's box growing along the line of sight does not count as slide: that growth is
-  the smear's fringe, and the point followed is its points' middle range ("Session 35").
+  the smear's fringe, and the point followed is its points' middle range ("Session 35");
+- narrow is judged by the track's points, not its box: a walker smeared along an oblique line of
+  sight has an axis-aligned box metres wide across it, while his points are half a metre wide
+  and their middle half lies within a metre along it; a wall seen edge-on is as thin across
+  but deep all along, so it is not narrow ("Session 38").
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -26,7 +31,7 @@ import numpy.typing as npt
 
 from services.tracker import motion_window
 from services.tracker.fragments import Standing
-from services.tracker.motion_state import Hysteresis, across_sight, label, slide_speed, speed_and_sigma
+from services.tracker.motion_state import Hysteresis, across_sight, label, slide_lag, slide_speed, speed_and_sigma
 from services.tracker.track import TrackTable
 
 NDArray = npt.NDArray[Any]
@@ -43,6 +48,7 @@ class MotionLabeller:
     narrow_across_m: float = 0.0  # narrower across the line of sight: may be labelled by that motion; 0: off
     upright_sigma_k: float | None = None  # sigmas of doubt for an upright track; None: the hysteresis's
     near_only_m: float = 0.0  # an upright track at most this long (x and y) is confirmed by its near face
+    narrow_by_points: bool = False  # narrow, and its slide, by its points across the line of sight, not its box
 
     def label(self, t: TrackTable, voxel_edge: float, eye: NDArray) -> NDArray:
         """The tracks' new moving flags; ``eye`` is the camera's world position (x, y)."""
@@ -50,12 +56,21 @@ class MotionLabeller:
         speed, sigma = speed_and_sigma(t.x[:, 3:6], t.p[:, 3:6, 3:6])
         slide = slide_speed(extent, t.extent_slow, self.frame_period_s, voxel_edge)
         k = self.hysteresis.sigma_k
+        upright = self.standing.upright(extent)
         if self.narrow_across_m > 0.0 and len(t):
             a = across_sight(
                 t.x[:, 0:2], t.x[:, 3:5], t.p[:, 3:5, 3:5], extent, t.extent_slow, eye, self.frame_period_s, voxel_edge
             )
-            confirm, across_confirm = self.window_bounds(t, k, a.normal)
+            confirm, across_confirm = self.window_bounds(t, k, upright, a.normal)
             narrow = a.width < self.narrow_across_m
+            if self.narrow_by_points:
+                # by its points (anchor.py): width across now and lately, and the core's depth along;
+                # its slide is then its points' growth across, not its box's
+                known = np.isfinite(t.across) & np.isfinite(t.across_slow)
+                thin = (np.maximum(t.across, t.across_slow) < self.narrow_across_m) & (t.depth < self.narrow_across_m)
+                narrow = np.where(known, thin, narrow)
+                growth = 0.5 * np.maximum(np.abs(t.across - t.across_slow) - voxel_edge, 0.0)
+                a = dataclasses.replace(a, slide=np.where(known, growth / slide_lag(self.frame_period_s), a.slide))
             # a narrow track is followed at its points' middle range (anchor.py), which the fringe
             # its box grows by along the line of sight hardly moves: only growth across it slides it
             slide = np.where(narrow, a.slide, slide)
@@ -69,12 +84,14 @@ class MotionLabeller:
             )
             confirm = np.where(use, across_confirm, confirm)
         else:
-            confirm, _ = self.window_bounds(t, k)
+            confirm, _ = self.window_bounds(t, k, upright)
         upright_k = k if self.upright_sigma_k is None else self.upright_sigma_k
-        sigma_k = np.where(self.standing.upright(extent), upright_k, k)
+        sigma_k = np.where(upright, upright_k, k)
         return label(t.moving, speed, sigma, slide, t.age, self.hysteresis, confirm, sigma_k)
 
-    def window_bounds(self, t: TrackTable, k: float, direction: NDArray | None = None) -> tuple[NDArray, NDArray]:
+    def window_bounds(
+        self, t: TrackTable, k: float, upright: NDArray, direction: NDArray | None = None
+    ) -> tuple[NDArray, NDArray]:
         """The faces' bounds on the speed, whole and along ``direction``: the lower of both ends'.
 
         Both ends go through one fit, as they share times and counts; a compact upright track
@@ -90,7 +107,7 @@ class MotionLabeller:
             None if direction is None else np.concatenate([direction, direction]),
         )
         extent = t.bbox_max - t.bbox_min
-        near_only = self.standing.upright(extent) & (extent[:, 0:2].max(axis=1) <= self.near_only_m)
+        near_only = upright & (extent[:, 0:2].max(axis=1) <= self.near_only_m)
         return (
             np.where(near_only, whole[:n], np.minimum(whole[:n], whole[n:])),
             np.where(near_only, along[:n], np.minimum(along[:n], along[n:])),

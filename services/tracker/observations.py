@@ -26,6 +26,8 @@ class Observations:
     far: NDArray  # (m, 3) from the near end to the far end of the cluster along the vehicle's x
     narrow: NDArray  # (m,) followed at the middle range of its points, not its near face (anchor.py)
     cut: NDArray  # (m,) its near end is where the image's side edge cuts it: followed at its far end
+    across: NDArray  # (m,) how wide its points are across the line of sight (m, 5-95 %; NaN: unknown)
+    depth: NDArray  # (m,) how deep their middle half lies along it (m, 25-75 %; NaN: unknown or not narrow)
     bbox_min: NDArray
     bbox_max: NDArray
     rgb: NDArray
@@ -73,7 +75,7 @@ def observe(
     scalars = np.hstack([stacked("density", 1), stacked("volume", 1)])
     finite = np.isfinite(geometry).all(axis=1) & np.isfinite(colour).all(axis=1) & np.isfinite(scalars).all(axis=1)
     keep = np.flatnonzero(finite)
-    points, side, far, narrow, cut = anchors(
+    points, side, far, narrow, cut, spread = anchors(
         [clusters[i] for i in keep.tolist()], geometry[keep, 0:3], pose, edge, view, view_margin
     )
     obs = Observations(
@@ -84,6 +86,8 @@ def observe(
         far=far,
         narrow=narrow,
         cut=cut,
+        across=spread[:, 0],
+        depth=spread[:, 1],
         bbox_min=geometry[keep, 3:6],
         bbox_max=geometry[keep, 6:9],
         rgb=colour[keep, 0:3],

@@ -47,6 +47,9 @@ class TrackTable:
     hsl: NDArray = _empty(3)
     extent: NDArray = _empty(3)
     extent_slow: NDArray = _empty(3)  # slow average of the box extent: steady growth shows against it
+    across: NDArray = _empty()  # its last cluster's points' width across the line of sight (m, anchor.py)
+    across_slow: NDArray = _empty()  # ... and their slow average, as extent_slow
+    depth: NDArray = _empty()  # how deep its last cluster's points' middle half lies along the line of sight
     density: NDArray = _empty()
     volume: NDArray = _empty()
     centroid: NDArray = _empty(3)  # last cluster's
@@ -102,6 +105,9 @@ def born(ids: NDArray, obs: Observations, p: NDArray, clock: float, parted: NDAr
         hsl=obs.hsl.copy(),
         extent=obs.extent,
         extent_slow=obs.extent,
+        across=obs.across.copy(),
+        across_slow=obs.across.copy(),
+        depth=obs.depth.copy(),
         density=obs.density.copy(),
         volume=obs.volume.copy(),
         centroid=obs.centroid.copy(),
