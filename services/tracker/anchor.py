@@ -191,7 +191,7 @@ def _place(
     far = np.zeros((n, 3))
     narrow = np.zeros(n, dtype=np.bool_)
     cut = np.zeros(n, dtype=np.bool_)
-    width = np.full((n, 2), np.nan)
+    sizes = np.full((n, 2), np.nan)  # across the line of sight and, if narrow, the core's depth along it
     faces, median, tails, none = np.array([q, 1.0 - q]), np.array([0.5]), np.array([0.05, 0.95]), np.zeros(0)
     xs, ys, spread = np.empty(4), np.empty(2), np.empty(2)
     r, o = pose[0:3, 0:3], pose[0:3, 3]
@@ -226,12 +226,12 @@ def _place(
         start += m
         near_x, far_x, range_x, y_lo, y_hi = xs[0], xs[1], xs[2], ys[0], ys[1]
         along_road = (y_hi - y_lo < narrow_m) and (far_x - near_x >= along_road_m)
-        width[c, 0] = spread[1] - spread[0]
-        narrow[c] = counted[c] and ((width[c, 0] < narrow_m) or along_road)
-        if width[c, 0] < narrow_m:
+        sizes[c, 0] = spread[1] - spread[0]
+        narrow[c] = counted[c] and ((sizes[c, 0] < narrow_m) or along_road)
+        if sizes[c, 0] < narrow_m:
             # how deep its points' middle half lies along the line of sight: a walker's core is
             # compact however long his smear's fringe; a wall seen edge-on is deep throughout
-            width[c, 1] = _middle_half(ray_x * x + ray_y * y, w, 0.125 * edge)
+            sizes[c, 1] = _middle_half(ray_x * x + ray_y * y, w, 0.125 * edge)
         if trim > 0.0:
             range_x = xs[3]
         front = range_x if narrow[c] else near_x
@@ -248,7 +248,7 @@ def _place(
             dx = near_x - view[0]
             inside = min(view[2] * dx - (y_hi - view[1]), (y_lo - view[1]) - view[3] * dx)
             cut[c] = not narrow[c] and inside <= view_margin
-    return out, side, far, narrow, cut, width
+    return out, side, far, narrow, cut, sizes
 
 
 #: what ``_place`` is given without the mapper's image edges: slopes that fail its test.

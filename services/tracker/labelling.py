@@ -3,7 +3,7 @@
 The filter's bound is its speed less some of its own doubt (motion_state.label); the faces' bound
 is the slope of the track's last faces less their scatter (motion_window.py). A track turns
 moving only when both clear the threshold, so a velocity the filter learnt from a face that slid
-is not believed until the faces move too. Four refinements, each measured on tracker replays
+is not believed until the faces move too. Five refinements, each measured on tracker replays
 (docs/results/tracking.md):
 
 - a narrow track (a walker, a cyclist, a pole) may be labelled by its motion across the line of
