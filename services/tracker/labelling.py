@@ -31,7 +31,7 @@ import numpy.typing as npt
 
 from services.tracker import motion_window
 from services.tracker.fragments import Standing
-from services.tracker.motion_state import Hysteresis, across_sight, label, slide_lag, slide_speed, speed_and_sigma
+from services.tracker.motion_state import Hysteresis, across_sight, label, slide_speed, speed_and_sigma, width_slide
 from services.tracker.track import TrackTable
 
 NDArray = npt.NDArray[Any]
@@ -69,8 +69,8 @@ class MotionLabeller:
                 known = np.isfinite(t.across) & np.isfinite(t.across_slow)
                 thin = (np.maximum(t.across, t.across_slow) < self.narrow_across_m) & (t.depth < self.narrow_across_m)
                 narrow = np.where(known, thin, narrow)
-                growth = 0.5 * np.maximum(np.abs(t.across - t.across_slow) - voxel_edge, 0.0)
-                a = dataclasses.replace(a, slide=np.where(known, growth / slide_lag(self.frame_period_s), a.slide))
+                growth = width_slide(t.across, t.across_slow, self.frame_period_s, voxel_edge)
+                a = dataclasses.replace(a, slide=np.where(known, growth, a.slide))
             # a narrow track is followed at its points' middle range (anchor.py), which the fringe
             # its box grows by along the line of sight hardly moves: only growth across it slides it
             slide = np.where(narrow, a.slide, slide)

@@ -51,7 +51,7 @@ def speed_and_sigma(velocity: NDArray, velocity_cov: NDArray) -> tuple[NDArray, 
     return speed, np.sqrt(np.maximum(var, 0.0))
 
 
-def slide_lag(period_s: float) -> float:
+def _slide_lag(period_s: float) -> float:
     """Seconds by which the slow extent trails the newest under steady growth."""
     return period_s * (1.0 - SLIDE_SMOOTHING) / SLIDE_SMOOTHING
 
@@ -65,7 +65,12 @@ def slide_speed(extent: NDArray, extent_slow: NDArray, period_s: float, voxel_ed
     axis is not counted as growth.
     """
     growth = np.maximum(np.abs(extent - extent_slow)[:, 0:2] - voxel_edge, 0.0)
-    return 0.5 * np.linalg.norm(growth, axis=1) / slide_lag(period_s)
+    return 0.5 * np.linalg.norm(growth, axis=1) / _slide_lag(period_s)
+
+
+def width_slide(now: NDArray, slow: NDArray, period_s: float, voxel_edge: float) -> NDArray:
+    """Centre speed (n,) that a width growing or shrinking from ``slow`` to ``now`` explains on its own."""
+    return 0.5 * np.maximum(np.abs(now - slow) - voxel_edge, 0.0) / _slide_lag(period_s)
 
 
 @dataclass(frozen=True)
@@ -111,7 +116,7 @@ def across_sight(
         width=now,
         speed=np.abs((velocity * normal).sum(axis=1)),
         sigma=np.sqrt(np.maximum(var, 0.0)),
-        slide=0.5 * np.maximum(np.abs(now - slow) - voxel_edge, 0.0) / slide_lag(period_s),
+        slide=width_slide(now, slow, period_s, voxel_edge),
     )
 
 
