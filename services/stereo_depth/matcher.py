@@ -22,6 +22,7 @@ import numpy as np
 from common.config import StereoConfig
 from common.errors import ConfigError
 from services.stereo_depth.consistency import left_right_check, textured, upsample, within_neighbours
+from services.stereo_depth.exposure import contrast_gain, stretched
 from services.stereo_depth.occlusion import fill_hidden
 from services.stereo_depth.sgbm import DisparityMap, Image, SgbmParams, SgbmPass, round_up_16
 from services.stereo_depth.sky import sky_mask
@@ -51,6 +52,7 @@ class MultiResolutionMatcher:
         min_texture: float = 0.0,
         subpixel: SubpixelParams | None = None,
         sky: tuple[int, float, float] = (0, 0.0, 0.0),
+        contrast_span: float = 0.0,
     ) -> None:
         if lr_check not in LR_MODES:
             raise ConfigError(f"stereo.lr_check {lr_check!r} unknown; allowed: {LR_MODES}")
@@ -66,6 +68,7 @@ class MultiResolutionMatcher:
         self.min_texture = min_texture
         self.subpixel = subpixel
         self.sky_window_px, self.sky_max_gradient, self.sky_gap_colour = sky
+        self.contrast_span = contrast_span
         #: milliseconds of the last ``match`` per step: sgbm_coarse, sgbm_fine, lr_check, fill, subpixel, sky.
         self.timings_ms: dict[str, float] = {}
 
@@ -106,17 +109,24 @@ class MultiResolutionMatcher:
         return cls(
             fine, coarse, cfg.lr_check, cfg.lr_max_diff_px, cfg.fill_support_px, cfg.color_matching, hidden,
             cfg.min_texture, subpixel, (cfg.sky_window_px, cfg.sky_max_gradient, cfg.sky_gap_colour),
+            cfg.contrast_span,
         )  # fmt: skip
 
     def match(self, left_rgb: Image, right_rgb: Image) -> DisparityMap:
         self.timings_ms = dict.fromkeys(("sgbm_coarse", "sgbm_fine", "lr_check", "fill", "subpixel", "sky"), 0.0)
         left, right = self._intensity(left_rgb), self._intensity(right_rgb)
+        # a dim pair: SGM's penalties scaled down, the grey-level tests on a stretched view (exposure.py)
+        gain = contrast_gain(left, self.contrast_span)
+        for sgbm in (self.fine, self.coarse):
+            if sgbm is not None:
+                sgbm.scale_penalties(1.0 / gain)
+        seen = stretched(left, gain)
         coarse_left, coarse_right = self._coarse(left, right)
         fine = self._fine(left, right, coarse_right)
-        fused = self._timed("fill", lambda: self._fuse(fine, coarse_left, left))
+        fused = self._timed("fill", lambda: self._fuse(fine, coarse_left, seen))
         fused = self._timed("subpixel", lambda: self._refine(fused, left, right))
-        fused = self._timed("fill", lambda: self._fill_hidden(fused, left))
-        return self._timed("sky", lambda: self._drop_sky(fused, left, left_rgb))
+        fused = self._timed("fill", lambda: self._fill_hidden(fused, seen))
+        return self._timed("sky", lambda: self._drop_sky(fused, seen, left_rgb))
 
     def _timed(self, step: str, work: Callable[[], T]) -> T:
         start = time.perf_counter()

@@ -73,6 +73,11 @@ class SgbmPass:
             mode=MODES[params.mode],
         )
 
+    def scale_penalties(self, factor: float) -> None:
+        """P1 and P2 at ``factor`` times their configured values, until the next call (exposure.py)."""
+        self._sgbm.setP1(max(1, round(self.params.p1 * factor)))
+        self._sgbm.setP2(max(2, round(self.params.p2 * factor)))
+
     def left(self, left: Image, right: Image) -> DisparityMap:
         """Disparity of each left pixel (its match sits ``d`` columns to the left in the right image)."""
         pad = self.params.num_disparities if self.params.pad_left else 0
