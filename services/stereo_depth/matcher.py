@@ -22,7 +22,7 @@ import numpy as np
 from common.config import StereoConfig
 from common.errors import ConfigError
 from services.stereo_depth.consistency import left_right_check, textured, upsample, within_neighbours
-from services.stereo_depth.exposure import contrast_gain, stretched
+from services.stereo_depth.exposure import contrast_gain
 from services.stereo_depth.occlusion import fill_hidden
 from services.stereo_depth.sgbm import DisparityMap, Image, SgbmParams, SgbmPass, round_up_16
 from services.stereo_depth.sky import sky_mask
@@ -115,18 +115,16 @@ class MultiResolutionMatcher:
     def match(self, left_rgb: Image, right_rgb: Image) -> DisparityMap:
         self.timings_ms = dict.fromkeys(("sgbm_coarse", "sgbm_fine", "lr_check", "fill", "subpixel", "sky"), 0.0)
         left, right = self._intensity(left_rgb), self._intensity(right_rgb)
-        # a dim pair: SGM's penalties scaled down, the grey-level tests on a stretched view (exposure.py)
-        gain = contrast_gain(left, self.contrast_span)
+        gain = contrast_gain(left, self.contrast_span)  # a dim pair: SGM's penalties scaled down (exposure.py)
         for sgbm in (self.fine, self.coarse):
             if sgbm is not None:
                 sgbm.scale_penalties(1.0 / gain)
-        seen = stretched(left, gain)
         coarse_left, coarse_right = self._coarse(left, right)
         fine = self._fine(left, right, coarse_right)
-        fused = self._timed("fill", lambda: self._fuse(fine, coarse_left, seen))
+        fused = self._timed("fill", lambda: self._fuse(fine, coarse_left, left))
         fused = self._timed("subpixel", lambda: self._refine(fused, left, right))
-        fused = self._timed("fill", lambda: self._fill_hidden(fused, seen))
-        return self._timed("sky", lambda: self._drop_sky(fused, seen, left_rgb))
+        fused = self._timed("fill", lambda: self._fill_hidden(fused, left))
+        return self._timed("sky", lambda: self._drop_sky(fused, left, left_rgb))
 
     def _timed(self, step: str, work: Callable[[], T]) -> T:
         start = time.perf_counter()
