@@ -17,12 +17,9 @@ fill, sky) on a stretched view, was measured and left out (docs/results/stereo.m
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
-import numpy.typing as npt
 
-Image = npt.NDArray[Any]
+from services.stereo_depth.sgbm import Image
 
 #: percentiles whose distance is the image's contrast: the darkest and brightest 1 % are outliers
 #: (specular highlights, a street lamp, the black of a tunnel mouth).

@@ -266,7 +266,7 @@ def anchors(
     """World points (n, 3 sides, 3), the side in view (n,), the far-end shift (n, 3), which are narrow
     (n,), which are cut by the image's side edge (n,; ``view`` as ``Clusters.view``) and how wide
     their points are across the line of sight and, where that is under ``NARROW_M``, how deep their
-    middle half lies along it (n, 2, m: 5-95 % and 25-75 % of the points; NaN where unknown).
+    middle half lies along it (n, 2; metres, 5-95 % and 25-75 % of the points; NaN where unknown).
 
     Side 0 takes the low-y face (object left of the line of sight), 1 the middle (straddling it),
     2 the high-y face (right of it); x is the near face (a narrow cluster's interquartile mean range) and z
