@@ -86,6 +86,8 @@ class StereoConfig:
     below_volume_m: float = 1.0  # keep points this far below volume.z_min: the road for the mapper
     disparity_offset_px: float = 0.0  # a rig's disparity bias, added before depth (KITTI: as odometry's)
     disparity_edge_px: float = 0.0  # plus this times ((u - cx) / fx)^2, towards the image sides
+    keypoints: int = 3000  # corners followed from frame to frame with their disparity (keypoints.py); 0 = off
+    keypoint_disparity_std_px: float = 0.3  # ... whose disparity is this sure (one sigma): their range's doubt
     subpixel_iterations: int = 3  # Lucas-Kanade steps re-estimating SGM's sub-pixel part; 0 = off
     subpixel_window: int = 11  # their Gaussian window (px, odd)
     subpixel_span_px: float = 1.5  # ... used only where the window's matched disparities span at most this
@@ -241,6 +243,10 @@ class TrackerConfig:
     coast_min_age: int = 8  # ... if this many frames old (measured 0: a young track's wrong velocity coasted too)
     coast_max_speed_mps: float = 5.0  # ... and no faster (a car's rear is upright too; 3 measured the same)
     view_margin_m: float = 0.5  # a cluster this near (m) the image's side edge: followed at its far end (1.0: alike)
+    corner_samples: int = 6  # a followed corner's velocity needs this many frames of it (keypoint_motion.py); 0: off
+    corner_min_count: int = 4  # a track's corners have an opinion when it holds this many (measured 3, 4, 5)
+    corner_on_mps: float = 1.0  # ... and their median speed, less its doubt, above this turns it moving
+    corner_sigma_k: float = 2.0  # ... that doubt taken this many times (measured 1.5: KITTI 0001 1 false frame)
 
 
 @dataclass

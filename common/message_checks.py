@@ -48,3 +48,6 @@ def check_consistent(msg: Any, where: str) -> None:
             raise DecodeError(f"{where}: images of {msg.left.shape[:2]} and {msg.right.shape[:2]}, calibration {size}")
     if hasattr(msg, "points") and hasattr(msg, "colors") and len(msg.points) != len(msg.colors):
         raise DecodeError(f"{where}: {len(msg.points)} points but {len(msg.colors)} colours")
+    if hasattr(msg, "keypoint_ids") and not len(msg.keypoint_ids) == len(msg.keypoints) == len(msg.keypoint_std):
+        counts = (len(msg.keypoint_ids), len(msg.keypoints), len(msg.keypoint_std))
+        raise DecodeError(f"{where}: {counts[0]} keypoint ids, {counts[1]} keypoints, {counts[2]} range doubts")

@@ -165,6 +165,11 @@ class PointCloud(Message):
     points: NDArray = array_field("float32", (None, 3))
     colors: NDArray = array_field("uint8", (None, 3))
     origin: NDArray = array_field("float64", (3,), _zeros(3))  # where they were seen from: the left camera
+    # corners followed from frame to frame (stereo_depth/keypoints.py): ids that persist while a
+    # corner is followed, and where it is; empty when the stage does not follow any
+    keypoint_ids: NDArray = array_field("int64", (None,), _zeros(0, dtype="int64"))
+    keypoints: NDArray = array_field("float32", (None, 3), _zeros(0, 3, dtype="float32"))
+    keypoint_std: NDArray = array_field("float32", (None,), _zeros(0, dtype="float32"))  # along the ray (m)
 
 
 @dataclass(kw_only=True)
@@ -208,6 +213,10 @@ class Clusters(Message):
     # bearings: the image's side edges, which cut what stands beside the road. Unknown (older
     # recordings, an empty cloud) when the left slope is not above the right one.
     view: NDArray = array_field("float64", (4,), _zeros(4))
+    # the cloud's followed corners (PointCloud.keypoint_ids), placed in the world with the clusters
+    keypoint_ids: NDArray = array_field("int64", (None,), _zeros(0, dtype="int64"))
+    keypoints: NDArray = array_field("float64", (None, 3), _zeros(0, 3))
+    keypoint_std: NDArray = array_field("float32", (None,), _zeros(0, dtype="float32"))
 
 
 @dataclass(kw_only=True)

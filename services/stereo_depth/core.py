@@ -13,11 +13,13 @@ import time
 from collections.abc import Callable
 from typing import TypeVar
 
+import cv2
 import numpy as np
 
 from common.config import Config, StereoConfig, VolumeConfig
 from common.errors import ConfigError
 from common.messages import Calibration, Disparity, PointCloud, StereoFrame
+from services.stereo_depth.keypoints import KeypointParams, Keypoints, KeypointTracker
 from services.stereo_depth.matcher import MultiResolutionMatcher
 from services.stereo_depth.ramps import RampFilter
 from services.stereo_depth.reproject import Colors, Points, Reprojector, VolumeCrop
@@ -41,6 +43,7 @@ class StereoDepth:
         if stereo.num_disparities < 0 or stereo.decimation < 1:
             raise ConfigError("stereo.num_disparities must be >= 0 (0 = from calibration), decimation >= 1")
         self.cfg = stereo
+        self.volume_reach_m = float(np.hypot(volume.x_max, volume.y_half))
         crop = VolumeCrop.from_config(volume, stereo.below_volume_m)
         bias = (stereo.disparity_offset_px, stereo.disparity_edge_px)
         ramps = None
@@ -48,6 +51,8 @@ class StereoDepth:
             ramps = RampFilter(stereo.ramp_step_px, stereo.ramp_reach_px, stereo.ramp_width_px, stereo.ramp_margin_px,
                                stereo.ramp_flat_share, stereo.ramp_snap_ratio)
         self.reprojector = Reprojector(crop, stereo.min_points_depth_m, stereo.decimation, bias, ramps)
+        corners = KeypointParams(max_count=stereo.keypoints)
+        self.keypoint_tracker = KeypointTracker(corners) if stereo.keypoints else None
         self._matchers: dict[int, MultiResolutionMatcher] = {}
         self.last_degenerate = False
         self.last_timings_ms: dict[str, float] = {}
@@ -63,14 +68,28 @@ class StereoDepth:
         self.last_timings_ms = {}
         disparity = self._timed("match", lambda: self._disparity(frame))  # SGM at two resolutions, checked
         points, colors = self._timed("reproject", lambda: self.reprojector.points(disparity, frame.left, frame.calib))
-        return self._messages(frame, points, colors, disparity)
+        cloud, disp = self._messages(frame, points, colors, disparity)
+        if self.keypoint_tracker is not None and not self.last_degenerate:
+            keypoints = self._timed("keypoints", lambda: self._keypoints(frame, disparity))
+            std_px = self.cfg.keypoint_disparity_std_px
+            cloud.keypoint_ids, cloud.keypoints, cloud.keypoint_std = self.reprojector.keypoints(
+                keypoints, frame.calib, std_px
+            )
+        return cloud, disp
+
+    def _keypoints(self, frame: StereoFrame, disparity: DisparityMap) -> Keypoints:
+        assert self.keypoint_tracker is not None
+        left, right = (cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2GRAY) for img in (frame.left, frame.right))
+        reach = frame.calib.fx * frame.calib.baseline / self.volume_reach_m  # nothing beyond the volume
+        return self.keypoint_tracker.update(left, right, disparity, frame.frame_id, reach)
 
     def step_timings_ms(self) -> dict[str, float]:
         """The last frame's milliseconds per step: sgbm_coarse, sgbm_fine, lr_check, fill, subpixel, reproject,
-        total."""
+        keypoints, total."""
         steps = dict(self._last_matcher.timings_ms) if self._last_matcher else {}
         steps["reproject"] = self.last_timings_ms.get("reproject", 0.0)
-        steps["total"] = self.last_timings_ms.get("match", 0.0) + steps["reproject"]
+        steps["keypoints"] = self.last_timings_ms.get("keypoints", 0.0)
+        steps["total"] = self.last_timings_ms.get("match", 0.0) + steps["reproject"] + steps["keypoints"]
         return steps
 
     def _disparity(self, frame: StereoFrame) -> DisparityMap:

@@ -17,6 +17,7 @@ import numpy.typing as npt
 
 from common.config import VolumeConfig
 from common.messages import Calibration
+from services.stereo_depth.keypoints import Keypoints
 from services.stereo_depth.ramps import RampFilter
 from services.stereo_depth.sgbm import DisparityMap
 
@@ -102,12 +103,28 @@ class Reprojector:
         and 1-2 m too far at the sides. The published disparity image stays the matcher's own;
         only depths use the correction, exactly as odometry does for its features.
         """
-        offset, edge = self.bias_px
-        if offset == 0.0 and edge == 0.0:
+        if self.bias_px == (0.0, 0.0):
             return disp
-        u = np.arange(disp.shape[1], dtype=np.float32) * self.step
+        return disp + self._bias(np.arange(disp.shape[1], dtype=np.float32) * self.step, calib)[None, :]
+
+    def _bias(self, u: npt.NDArray[np.float32], calib: Calibration) -> npt.NDArray[np.float32]:
+        offset, edge = self.bias_px
         side = (u - np.float32(calib.cx)) / np.float32(calib.fx)
-        return disp + (np.float32(offset) + np.float32(edge) * side * side)[None, :]
+        return np.float32(offset) + np.float32(edge) * side * side
+
+    def keypoints(
+        self, keypoints: Keypoints, calib: Calibration, disparity_std_px: float
+    ) -> tuple[npt.NDArray[np.int64], Points, npt.NDArray[np.float32]]:
+        """Followed corners in the vehicle frame (float32) as near as the cloud's points, their ids, and how
+        sure their range is: ``disparity_std_px`` of disparity is ``Z / d`` times as many metres."""
+        disp = keypoints.disparity + self._bias(keypoints.uv[:, 0], calib)
+        near = disp <= np.float32(calib.fx * calib.baseline / self.min_depth_m)
+        ids, uv, disp = keypoints.ids[near], keypoints.uv[near], disp[near].astype(np.float64)
+        z = calib.fx * calib.baseline / disp
+        camera = np.stack([(uv[:, 0] - calib.cx) * z / calib.fx, (uv[:, 1] - calib.cy) * z / calib.fy, z], axis=1)
+        pose = np.asarray(calib.cam_to_vehicle, dtype=np.float64)
+        points = (camera @ pose[:3, :3].T + pose[:3, 3]).astype(np.float32)
+        return ids, points, (disparity_std_px * z / disp).astype(np.float32)
 
     def _rays_for(self, calib: Calibration, shape: tuple[int, ...]) -> Rays:
         key = _calib_key(calib, self.step)

@@ -45,6 +45,7 @@ from services.tracker.clock import FrameClock
 from services.tracker.faces import turn_ends, turn_sides
 from services.tracker.fragments import APART_BY_BOX, Sight, Standing, claims, gather, stand_apart
 from services.tracker.jumps import Jumps
+from services.tracker.keypoint_motion import CornerHistory, corner_velocity
 from services.tracker.labelling import MotionLabeller
 from services.tracker.left_behind import LeftBehind, restart_from_rest
 from services.tracker.measurement import cut_covariance, stereo_covariance, view_cut_covariance, visibility_covariance
@@ -113,6 +114,7 @@ class Tracker:
         parting: Parting = NO_PARTING,
         velocity_faces: int = 0,
         narrow_by_points: bool = False,
+        corners: tuple[int, int, float, float] = (0, 0, 0.0, 0.0),
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -152,7 +154,10 @@ class Tracker:
             upright_sigma_k,
             near_only_m,
             narrow_by_points,
+            corners[1:] if corners[0] > 0 else (0, 0.0, 0.0),
         )
+        self.corner_samples = corners[0]
+        self.corners = CornerHistory()  # the stereo stage's followed corners (keypoint_motion.py)
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.tracks = TrackTable()
         self.ego = EgoVelocity()
@@ -205,6 +210,7 @@ class Tracker:
             ),
             velocity_faces=t.velocity_faces,
             narrow_by_points=t.narrow_by_points,
+            corners=(t.corner_samples, t.corner_min_count, t.corner_on_mps, t.corner_sigma_k),
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
@@ -216,6 +222,9 @@ class Tracker:
             return obstacles_of(self.tracks, self.ego.velocity, clusters, ego, self.faces)
         dt, elapsed = self.guard.step(clusters)
         self._clock += dt
+        self.corners.update(
+            clusters.keypoint_ids, clusters.keypoints, clusters.keypoint_std, self._clock, clusters.world_epoch
+        )
         trusted = self._observe_ego(ego)
         pose = self._placement_pose(clusters, ego)
         self._predict(dt)
@@ -233,6 +242,7 @@ class Tracker:
         if trusted:
             self._correct(rows, obs.take(cols), r[cols])
         piece_of = {int(i): pieces[int(obs.index[j])] for i, j in zip(rows, cols, strict=True)}
+        self._corner_velocity(rows, [piece_of[int(i)] for i in rows], clusters.voxel_edge)
         if trusted:
             slid = self.left_behind.slid(
                 self.tracks.ids, rows, cols, obs, pieces, self.tracks.moving, clusters.voxel_edge
@@ -399,6 +409,15 @@ class Tracker:
             np.isnan(slow), now, np.where(np.isnan(now), slow, slow + SLIDE_SMOOTHING * (now - slow))
         )
         t.density[rows] += a * (obs.density - t.density[rows])
+
+    def _corner_velocity(self, rows: NDArray, pieces: list[Cluster], edge: float) -> None:
+        """The velocity of the corners on each track's cluster this frame; none on an unseen track."""
+        t = self.tracks
+        t.corner_count[:] = 0
+        if self.corner_samples <= 0 or len(rows) == 0:
+            return
+        c = corner_velocity(self.corners, pieces, edge, self.corner_samples)
+        t.corner_velocity[rows], t.corner_sigma[rows], t.corner_count[rows] = c.velocity, c.sigma, c.count
 
     def _swallowed(self, rows: NDArray, obs: Observations) -> NDArray:
         """Which tracked rows' clusters outgrow their smoothed extent by over ``merge_growth_m`` (x or y)."""

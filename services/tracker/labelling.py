@@ -49,6 +49,8 @@ class MotionLabeller:
     upright_sigma_k: float | None = None  # sigmas of doubt for an upright track; None: the hysteresis's
     near_only_m: float = 0.0  # an upright track at most this long (x and y) is confirmed by its near face
     narrow_by_points: bool = False  # narrow, and its slide, by its points across the line of sight, not its box
+    corners: tuple[int, float, float] = (0, 0.0, 0.0)  # corners a track needs for an opinion, the speed they must
+    # be sure of to turn it on, and how many of their sigmas that sureness takes
 
     def label(self, t: TrackTable, voxel_edge: float, eye: NDArray) -> NDArray:
         """The tracks' new moving flags; ``eye`` is the camera's world position (x, y)."""
@@ -87,7 +89,25 @@ class MotionLabeller:
             confirm, _ = self.window_bounds(t, k, upright)
         upright_k = k if self.upright_sigma_k is None else self.upright_sigma_k
         sigma_k = np.where(upright, upright_k, k)
-        return label(t.moving, speed, sigma, slide, t.age, self.hysteresis, confirm, sigma_k)
+        moving = label(t.moving, speed, sigma, slide, t.age, self.hysteresis, confirm, sigma_k)
+        return moving | self.by_corners(t)
+
+    def by_corners(self, t: TrackTable) -> NDArray:
+        """Which tracks the corners on them call moving (keypoint_motion.py).
+
+        Turning one on needs the corners sure (``k`` sigmas) of ``on``, a little less than a walker's
+        pace, and the filter's speed, doubt aside, over the threshold: corners on a pole's or a bin's
+        edge see the background through their window and drift with it, while the filter sees the
+        pole stand still. Keeping one moving needs them sure of the lower threshold alone.
+        """
+        min_count, on, k = self.corners
+        if min_count <= 0:
+            return np.zeros(len(t), dtype=bool)
+        bound = np.hypot(t.corner_velocity[:, 0], t.corner_velocity[:, 1]) - k * t.corner_sigma
+        sure = t.corner_count >= min_count
+        filtered = np.hypot(t.x[:, 3], t.x[:, 4])
+        turn_on = sure & (bound > on) & (filtered > self.hysteresis.on) & (t.age >= self.hysteresis.min_frames)
+        return np.where(t.moving, sure & (bound >= self.hysteresis.off), turn_on)
 
     def window_bounds(
         self, t: TrackTable, k: float, upright: NDArray, direction: NDArray | None = None

@@ -60,6 +60,9 @@ class TrackTable:
     window_t: NDArray = _empty(WINDOW)  # their times (s, tracker clock)
     window_n: NDArray = _empty(dtype=np.int64)  # how many of them belong to the current cluster shape
     parted: NDArray = _empty(dtype=bool)  # measured this frame on a part of a shared cluster (parting.py)
+    corner_velocity: NDArray = _empty(2)  # median velocity of the followed corners on it (keypoint_motion.py)
+    corner_sigma: NDArray = _empty()  # ... its doubt (m/s)
+    corner_count: NDArray = _empty(dtype=np.int64)  # ... and how many corners; 0: none, no opinion
 
     def __len__(self) -> int:
         return int(self.ids.shape[0])
@@ -118,4 +121,7 @@ def born(ids: NDArray, obs: Observations, p: NDArray, clock: float, parted: NDAr
         window_t=np.full((n, WINDOW), clock),
         window_n=np.ones(n, dtype=np.int64),
         parted=parted.copy(),
+        corner_velocity=np.zeros((n, 2)),
+        corner_sigma=np.full(n, np.inf),
+        corner_count=np.zeros(n, dtype=np.int64),
     )

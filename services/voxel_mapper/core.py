@@ -30,6 +30,7 @@ import numpy.typing as npt
 
 from common.config import Config, VolumeConfig
 from common.errors import ConfigError, InputError
+from common.geometry import transform
 from common.messages import Clusters, EgoMotion, PointCloud
 from services.voxel_mapper.flood_fill import flood_fill, touching_pairs
 from services.voxel_mapper.groups import split_groups
@@ -138,7 +139,9 @@ class VoxelMapper:
                                           self.map.edge)
         return Clusters(frame_id=cloud.frame_id, stamp_ns=cloud.stamp_ns, clusters=describe(self.map, labels),
                         voxel_edge=self.map.edge, world_epoch=ego.world_epoch, ego_pose=np.array(ego.pose),
-                        voxel_count=self.map.n, view=view_limits(cloud))
+                        voxel_count=self.map.n, view=view_limits(cloud), keypoint_ids=cloud.keypoint_ids,
+                        keypoints=transform(ego.pose, np.asarray(cloud.keypoints, dtype=np.float64)),
+                        keypoint_std=cloud.keypoint_std)
 
     def _near(self, labels: npt.NDArray[np.int32], n_clusters: int, pose: npt.NDArray[np.float64]
               ) -> npt.NDArray[np.bool_] | None:

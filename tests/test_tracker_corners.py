@@ -1,0 +1,148 @@
+"""A track's velocity from the corners on it the stereo stage follows (services/tracker/keypoint_motion.py)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from test_tracker import EDGE, box_voxels, new_tracker, of_voxels, step
+
+from common.messages import Cluster, Clusters, EgoMotion
+from services.tracker.keypoint_motion import HISTORY, MAX_GAP, CornerHistory, corner_velocity
+
+PERIOD_S = 0.1
+
+
+def _history(frames: int, ids: np.ndarray, start: np.ndarray, velocity: np.ndarray, std: float = 0.05,
+             skip: dict[int, set[int]] | None = None) -> CornerHistory:
+    """Corners moving at ``velocity`` (each its own row) from ``start``, seen every frame but those in ``skip``."""
+    history = CornerHistory()
+    for k in range(frames):
+        seen = np.array([i not in (skip or {}).get(k, set()) for i in ids])
+        xyz = start + velocity * PERIOD_S * k
+        history.update(ids[seen], xyz[seen], np.full(int(seen.sum()), std), PERIOD_S * k, epoch=0)
+    return history
+
+
+def test_each_corner_gets_the_velocity_of_the_line_through_its_positions() -> None:
+    ids = np.array([4, 11, 2])
+    start = np.array([[20.0, 0.0, 1.0], [20.0, 1.0, 1.0], [30.0, -3.0, 0.5]])
+    velocity = np.array([[1.5, 0.0, 0.0], [-0.5, 1.0, 0.0], [0.0, 0.0, 0.0]])
+    history = _history(HISTORY + 3, ids, start, velocity)
+    ready, fitted, doubt = history.velocities(min_samples=6)
+    assert ready.all()
+    by_id = dict(zip(history.ids.tolist(), fitted, strict=True))
+    for i, v in zip(ids, velocity, strict=True):
+        np.testing.assert_allclose(by_id[int(i)], v[:2], atol=1e-9)
+    # 0.05 m of range doubt through eight positions 0.1 s apart: 0.05 / sqrt(sum (t - mean)^2)
+    assert doubt == pytest.approx(0.05 / np.sqrt(0.42), rel=1e-6)
+
+
+def test_a_corner_missing_a_frame_keeps_its_history_and_one_gone_longer_is_forgotten() -> None:
+    ids = np.array([1, 2])
+    start, velocity = np.zeros((2, 3)), np.array([[1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    # corner 1 has no disparity in frame 5; corner 2 none in frames 3-5 (MAX_GAP + 1)
+    gone = set(range(3, 3 + MAX_GAP + 1))
+    history = _history(8, ids, start, velocity, skip={5: {1}} | {k: {2} for k in gone if k != 5} | {5: {1, 2}})
+    ready, fitted, _ = history.velocities(min_samples=6)
+    n = dict(zip(history.ids.tolist(), history.n.tolist(), strict=True))
+    assert n == {1: 7, 2: 2}  # corner 2 came back as new
+    assert history.ids[ready].tolist() == [1]
+    np.testing.assert_allclose(fitted[0], [1.0, 0.0], atol=1e-9)
+
+
+def test_a_new_world_forgets_every_corner() -> None:
+    history = _history(5, np.array([1]), np.zeros((1, 3)), np.zeros((1, 3)))
+    history.update(np.array([1]), np.zeros((1, 3)), np.array([0.05]), 0.5, epoch=1)
+    assert history.n.tolist() == [1]
+
+
+def test_a_clusters_corners_outvote_a_standing_neighbours_merged_into_it() -> None:
+    # a walker (6 corners, 1.5 m/s away from the camera) and a bin beside him (2 corners) in one
+    # cluster; a post alone in another; one corner on the road in none
+    walker_bin = of_voxels(np.vstack([box_voxels((20.0, 0.0, 0.0), (20.5, 0.5, 1.75)),
+                                      box_voxels((20.0, 0.5, 0.0), (20.5, 1.0, 1.0))]), cid=0)  # fmt: skip
+    post = of_voxels(box_voxels((25.0, -2.0, 0.0), (25.25, -1.75, 3.0)), cid=1)
+    walker_start = np.column_stack([np.full(6, 20.1 - 0.15 * 7), np.linspace(0.05, 0.45, 6), np.linspace(0.2, 1.6, 6)])
+    bin_start = np.array([[20.3, 0.7, 0.5], [20.3, 0.9, 0.8]])
+    post_start = np.array([[25.1, -1.9, 1.0], [25.1, -1.8, 2.0], [25.2, -1.9, 2.5]])
+    road = np.array([[15.0, 0.0, 0.0]])
+    start = np.vstack([walker_start, bin_start, post_start, road])
+    velocity = np.zeros_like(start)
+    velocity[:6, 0] = 1.5
+    history = _history(HISTORY, np.arange(len(start)), start, velocity)
+    found = corner_velocity(history, [walker_bin, post], EDGE, min_samples=6)
+    assert found.count.tolist() == [8, 3]
+    np.testing.assert_allclose(found.velocity[0], [1.5, 0.0], atol=1e-6)
+    np.testing.assert_allclose(found.velocity[1], [0.0, 0.0], atol=1e-6)
+    assert np.all(found.sigma > 0.0) and np.all(np.isfinite(found.sigma))
+
+
+def _noisy_walk(
+    tracker_corners: bool, speed: float, seed: int = 0, frames: int = 20
+) -> list[bool]:
+    """A narrow object 20 m ahead going away at ``speed`` whose cluster's range swings by metres
+    frame to frame (a smear's fringe, a neighbour merged in and out), and eight corners on it that
+    move with it, measured to 0.1 m. Whether any obstacle is labelled moving, frame by frame."""
+    rng = np.random.default_rng(seed)
+    tracker = new_tracker(corner_samples=6 if tracker_corners else 0)
+    corners = np.column_stack([np.full(8, 20.2), np.linspace(-0.2, 0.2, 8), np.linspace(0.2, 1.6, 8)])
+    labels = []
+    for k in range(frames):
+        x = 20.0 + speed * PERIOD_S * k
+        swing = rng.uniform(-1.5, 1.5)
+        body = box_voxels((x + min(swing, 0.0), -0.25, 0.0), (x + 0.5 + max(swing, 0.0), 0.25, 1.75))
+        cluster = of_voxels(body)
+        seen = corners + np.array([speed * PERIOD_S * k, 0.0, 0.0]) + rng.normal(0.0, 0.1, (8, 1)) * [1.0, 0.0, 0.0]
+        clusters = Clusters(
+            frame_id=k, stamp_ns=k * 100_000_000, clusters=[cluster], voxel_edge=EDGE,
+            keypoint_ids=np.arange(8), keypoints=seen, keypoint_std=np.full(8, 0.1, dtype=np.float32),
+        )  # fmt: skip
+        found = tracker.process(clusters, EgoMotion(frame_id=k, stamp_ns=k * 100_000_000, valid=True)).obstacles
+        labels.append(any(o.moving for o in found))  # a swing too far may start a second track
+    return labels
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_walker_whose_cluster_swings_is_called_moving_by_the_corners_on_him(seed: int) -> None:
+    with_corners = _noisy_walk(True, 1.6, seed)
+    assert True in with_corners and with_corners.index(True) <= 9 and all(with_corners[-5:]), with_corners
+    assert with_corners.count(True) > _noisy_walk(False, 1.6, seed).count(True)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_post_whose_cluster_swings_as_much_is_not(seed: int) -> None:
+    assert not any(_noisy_walk(True, 0.0, seed))
+
+
+def test_a_cluster_without_corners_is_labelled_as_before() -> None:
+    # clusters from a recording made before the stereo stage followed corners
+    tracker, plain = new_tracker(), new_tracker(corner_samples=0)
+    for k in range(12):
+        walker = of_voxels(box_voxels((20.0 + 0.15 * k, -0.25, 0.0), (20.5 + 0.15 * k, 0.25, 1.75)))
+        a, b = step(tracker, k, [walker]).obstacles, step(plain, k, [dataclasses.replace(walker)]).obstacles
+        assert [o.moving for o in a] == [o.moving for o in b]
+        assert np.allclose(a[0].velocity, b[0].velocity)
+
+
+def test_clusters_carry_corners_through_the_codec() -> None:
+    from common.codec import decode, encode
+
+    msg = Clusters(frame_id=1, stamp_ns=1, voxel_edge=EDGE, keypoint_ids=np.array([3, 5]),
+                   keypoints=np.ones((2, 3)), keypoint_std=np.array([0.1, 0.2], dtype=np.float32))  # fmt: skip
+    back = decode(encode(msg), Clusters)
+    assert back.keypoint_ids.tolist() == [3, 5] and back.keypoint_std.tolist() == pytest.approx([0.1, 0.2])
+
+
+def test_corners_and_their_doubts_must_agree_in_number() -> None:
+    from common.codec import decode, encode
+    from common.errors import DecodeError
+
+    msg = Clusters(frame_id=1, stamp_ns=1, voxel_edge=EDGE, keypoint_ids=np.array([3, 5]),
+                   keypoints=np.ones((2, 3)), keypoint_std=np.array([0.1], dtype=np.float32))  # fmt: skip
+    with pytest.raises(DecodeError, match="keypoint"):
+        decode(encode(msg), Clusters)
+
+
+_ = Cluster  # the helpers' type, re-exported for readers of this file
