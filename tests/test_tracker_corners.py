@@ -14,8 +14,14 @@ from services.tracker.keypoint_motion import HISTORY, MAX_GAP, CornerHistory, co
 PERIOD_S = 0.1
 
 
-def _history(frames: int, ids: np.ndarray, start: np.ndarray, velocity: np.ndarray, std: float = 0.05,
-             skip: dict[int, set[int]] | None = None) -> CornerHistory:
+def _history(
+    frames: int,
+    ids: np.ndarray,
+    start: np.ndarray,
+    velocity: np.ndarray,
+    std: float = 0.05,
+    skip: dict[int, set[int]] | None = None,
+) -> CornerHistory:
     """Corners moving at ``velocity`` (each its own row) from ``start``, seen every frame but those in ``skip``."""
     history = CornerHistory()
     for k in range(frames):
@@ -79,9 +85,7 @@ def test_a_clusters_corners_outvote_a_standing_neighbours_merged_into_it() -> No
     assert np.all(found.sigma > 0.0) and np.all(np.isfinite(found.sigma))
 
 
-def _noisy_walk(
-    tracker_corners: bool, speed: float, seed: int = 0, frames: int = 20
-) -> list[bool]:
+def _noisy_walk(tracker_corners: bool, speed: float, seed: int = 0, frames: int = 20) -> list[bool]:
     """A narrow object 20 m ahead going away at ``speed`` whose cluster's range swings by metres
     frame to frame (a smear's fringe, a neighbour merged in and out), and eight corners on it that
     move with it, measured to 0.1 m. Whether any obstacle is labelled moving, frame by frame."""

@@ -3,10 +3,10 @@
 Along the line of sight a cluster's range says little about its speed: what is in it changes from
 frame to frame (a neighbour merged in, a fringe of smear, a bin passed by), and a walker at 20 m
 moves 0.15-0.2 m a frame where those changes move the cluster by metres. A corner on the walker
-stays on the walker. Followed over eight frames and triangulated in each, corners on synthetic
-urban's walkers gave a speed over 1.0 m/s in 85-94 % of walker-frames, on its poles, bins and
-parked cars in 0-12 % (docs/results/tracking.md, "Session 40"). That is Franke's 6D-Vision
-measurement, sparse: the tracker fits each corner's line (keypoint_motion.py).
+stays on the walker. Followed over eight frames and triangulated in each, corners picked inside
+the truth boxes of synthetic urban's walkers gave a speed over 1.0 m/s in 85-94 % of walker-frames,
+on its poles, bins and parked cars in 0-12 % (docs/results/tracking.md, "Session 40"). That is
+Franke's 6D-Vision measurement, sparse: the tracker fits each corner's line (keypoint_motion.py).
 
 Corners are Shi-Tomasi's, topped up each frame where none is followed yet; each is followed by
 pyramidal Lucas-Kanade and kept only if following it back lands where it started. Its disparity
@@ -30,11 +30,11 @@ NDArray = npt.NDArray[Any]
 
 #: pyramid levels of the temporal match: 3 covers 20 px of image motion a frame (0.1 s) and more.
 PYRAMID_LEVELS: int = 3
-#: the stereo match starts from the matcher's disparity, so one level suffices.
-STEREO_LEVELS: int = 1
+#: the stereo match starts from the matcher's disparity, within a pixel or two: no pyramid.
+STEREO_LEVELS: int = 0
 #: side of the window Shi-Tomasi's measure sums the gradients over.
 CORNER_BLOCK_PX: int = 5
-LK_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+LK_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03)
 
 
 @dataclass(frozen=True)
@@ -44,7 +44,7 @@ class KeypointParams:
     max_count: int = 3000  # corners followed at once; 0 = off
     cell_px: int = 8  # at most one new corner per square cell of this size
     quality: float = 0.001  # weakest corner taken, as a share of the frame's strongest (Shi-Tomasi's measure)
-    window_px: int = 11  # Lucas-Kanade window (px, odd)
+    window_px: int = 9  # Lucas-Kanade window (px, odd): 11 cost twice the time for as many walker corners
     max_return_px: float = 0.6  # a corner followed back must land this near where it started
     max_row_px: float = 0.5  # its right-image match this near its row (rectified images)
     max_disparity_step_px: float = 1.0  # and its disparity this near the matcher's
@@ -81,14 +81,15 @@ class KeypointTracker:
         if self._grey is None or self._grey.shape != left.shape or frame_id <= self._frame_id:
             self._ids, self._uv = self._ids[:0], self._uv[:0]
         elif len(self._ids):
-            uv, ok = self._follow(self._grey, left, self._uv, self._uv)
+            uv, ok = self._follow(self._grey, left, self._uv, self._uv, PYRAMID_LEVELS)
             self._ids, self._uv = self._ids[ok], uv[ok]
         self._top_up(left, disparity, min_disparity)
         self._grey, self._frame_id = left, frame_id
         return self._stereo(left, right, disparity)
 
-    def _follow(self, a: Image, b: Image, uv: NDArray, guess: NDArray, levels: int = PYRAMID_LEVELS
-                ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.bool_]]:
+    def _follow(
+        self, a: Image, b: Image, uv: NDArray, guess: NDArray, levels: int
+    ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.bool_]]:
         """Lucas-Kanade from ``a`` to ``b`` and back; where each point went and whether it came back."""
         size = (self.params.window_px, self.params.window_px)
         start = np.array(uv, dtype=np.float32).reshape(-1, 1, 2)

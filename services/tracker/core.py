@@ -45,7 +45,7 @@ from services.tracker.clock import FrameClock
 from services.tracker.faces import turn_ends, turn_sides
 from services.tracker.fragments import APART_BY_BOX, Sight, Standing, claims, gather, stand_apart
 from services.tracker.jumps import Jumps
-from services.tracker.keypoint_motion import CornerHistory, corner_velocity
+from services.tracker.keypoint_motion import NO_CORNERS, CornerHistory, CornerRule, corner_velocity
 from services.tracker.labelling import MotionLabeller
 from services.tracker.left_behind import LeftBehind, restart_from_rest
 from services.tracker.measurement import cut_covariance, stereo_covariance, view_cut_covariance, visibility_covariance
@@ -114,7 +114,7 @@ class Tracker:
         parting: Parting = NO_PARTING,
         velocity_faces: int = 0,
         narrow_by_points: bool = False,
-        corners: tuple[int, int, float, float] = (0, 0, 0.0, 0.0),
+        corners: CornerRule = NO_CORNERS,
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -154,9 +154,9 @@ class Tracker:
             upright_sigma_k,
             near_only_m,
             narrow_by_points,
-            corners[1:] if corners[0] > 0 else (0, 0.0, 0.0),
+            corners,
         )
-        self.corner_samples = corners[0]
+        self.corner_samples = corners.samples
         self.corners = CornerHistory()  # the stereo stage's followed corners (keypoint_motion.py)
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.tracks = TrackTable()
@@ -210,7 +210,7 @@ class Tracker:
             ),
             velocity_faces=t.velocity_faces,
             narrow_by_points=t.narrow_by_points,
-            corners=(t.corner_samples, t.corner_min_count, t.corner_on_mps, t.corner_sigma_k),
+            corners=CornerRule(t.corner_samples, t.corner_min_count, t.corner_on_mps, t.corner_sigma_k),
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
@@ -222,9 +222,10 @@ class Tracker:
             return obstacles_of(self.tracks, self.ego.velocity, clusters, ego, self.faces)
         dt, elapsed = self.guard.step(clusters)
         self._clock += dt
-        self.corners.update(
-            clusters.keypoint_ids, clusters.keypoints, clusters.keypoint_std, self._clock, clusters.world_epoch
-        )
+        if self.corner_samples > 0:
+            self.corners.update(
+                clusters.keypoint_ids, clusters.keypoints, clusters.keypoint_std, self._clock, clusters.world_epoch
+            )
         trusted = self._observe_ego(ego)
         pose = self._placement_pose(clusters, ego)
         self._predict(dt)

@@ -35,6 +35,19 @@ MAD_SIGMA: float = 1.4826
 
 
 @dataclass(frozen=True)
+class CornerRule:
+    """When the corners on a track label it (config ``tracker.corner_*``; labelling.py)."""
+
+    samples: int = 0  # frames a corner must have been followed for its velocity; 0: corners unused
+    min_count: int = 0  # corners a track needs for their opinion
+    on_mps: float = 0.0  # the speed they must be sure of to turn it moving
+    sigma_k: float = 0.0  # ... sure by this many of their sigmas
+
+
+NO_CORNERS = CornerRule()
+
+
+@dataclass(frozen=True)
 class CornerVelocity:
     """Per track: the median velocity (n, 2) of the corners on it, its doubt (n,) and their number (n,)."""
 

@@ -31,6 +31,7 @@ import numpy.typing as npt
 
 from services.tracker import motion_window
 from services.tracker.fragments import Standing
+from services.tracker.keypoint_motion import NO_CORNERS, CornerRule
 from services.tracker.motion_state import Hysteresis, across_sight, label, slide_speed, speed_and_sigma, width_slide
 from services.tracker.track import TrackTable
 
@@ -49,8 +50,7 @@ class MotionLabeller:
     upright_sigma_k: float | None = None  # sigmas of doubt for an upright track; None: the hysteresis's
     near_only_m: float = 0.0  # an upright track at most this long (x and y) is confirmed by its near face
     narrow_by_points: bool = False  # narrow, and its slide, by its points across the line of sight, not its box
-    corners: tuple[int, float, float] = (0, 0.0, 0.0)  # corners a track needs for an opinion, the speed they must
-    # be sure of to turn it on, and how many of their sigmas that sureness takes
+    corners: CornerRule = NO_CORNERS  # when the corners followed on a track label it
 
     def label(self, t: TrackTable, voxel_edge: float, eye: NDArray) -> NDArray:
         """The tracks' new moving flags; ``eye`` is the camera's world position (x, y)."""
@@ -95,18 +95,18 @@ class MotionLabeller:
     def by_corners(self, t: TrackTable) -> NDArray:
         """Which tracks the corners on them call moving (keypoint_motion.py).
 
-        Turning one on needs the corners sure (``k`` sigmas) of ``on``, a little less than a walker's
+        Turning one on needs the corners sure (``sigma_k`` sigmas) of ``on_mps``, a little less than a walker's
         pace, and the filter's speed, doubt aside, over the threshold: corners on a pole's or a bin's
         edge see the background through their window and drift with it, while the filter sees the
         pole stand still. Keeping one moving needs them sure of the lower threshold alone.
         """
-        min_count, on, k = self.corners
-        if min_count <= 0:
+        rule = self.corners
+        if rule.samples <= 0:
             return np.zeros(len(t), dtype=bool)
-        bound = np.hypot(t.corner_velocity[:, 0], t.corner_velocity[:, 1]) - k * t.corner_sigma
-        sure = t.corner_count >= min_count
+        bound = np.hypot(t.corner_velocity[:, 0], t.corner_velocity[:, 1]) - rule.sigma_k * t.corner_sigma
+        sure = t.corner_count >= rule.min_count
         filtered = np.hypot(t.x[:, 3], t.x[:, 4])
-        turn_on = sure & (bound > on) & (filtered > self.hysteresis.on) & (t.age >= self.hysteresis.min_frames)
+        turn_on = sure & (bound > rule.on_mps) & (filtered > self.hysteresis.on) & (t.age >= self.hysteresis.min_frames)
         return np.where(t.moving, sure & (bound >= self.hysteresis.off), turn_on)
 
     def window_bounds(
