@@ -157,6 +157,7 @@ class Tracker:
             corners,
         )
         self.corner_samples = corners.samples
+        self.corner_rule = corners
         self.corners = CornerHistory()  # the stereo stage's followed corners (keypoint_motion.py)
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.tracks = TrackTable()
@@ -219,7 +220,7 @@ class Tracker:
         if new_world:
             self.tracks = TrackTable()
         if stale:
-            return obstacles_of(self.tracks, self.ego.velocity, clusters, ego, self.faces)
+            return obstacles_of(self.tracks, self.ego.velocity, clusters, ego, self.faces, self.corner_rule)
         dt, elapsed = self.guard.step(clusters)
         self._clock += dt
         if self.corner_samples > 0:
@@ -257,7 +258,7 @@ class Tracker:
             moving = self.labeller.label(self.tracks, clusters.voxel_edge, pose[0:2, 3])
             # a part's motion is partly where the parting drew its edge: it may keep a label, not give one
             self.tracks.moving = moving & (self.tracks.moving | ~self.tracks.parted)
-        return obstacles_of(self.tracks, self.ego.velocity, clusters, ego, self.faces)
+        return obstacles_of(self.tracks, self.ego.velocity, clusters, ego, self.faces, self.corner_rule)
 
     # ------------------------------------------------------------------ input
 

@@ -21,6 +21,7 @@ import numpy.typing as npt
 
 from common.messages import Cluster
 from common.voxel_keys import pack_cells
+from services.tracker.track import TrackTable
 
 NDArray = npt.NDArray[Any]
 
@@ -144,3 +145,20 @@ def corner_velocity(history: CornerHistory, pieces: list[Cluster], edge: float, 
         stereo = float(np.median(doubt[mine])) * np.sqrt(SHARED + (1.0 - SHARED) / m)
         out.velocity[j], out.count[j], out.sigma[j] = median, m, max(spread, stereo)
     return out
+
+
+def blend_corners(t: TrackTable, rule: CornerRule, velocity: NDArray, velocity_cov: NDArray) -> None:
+    """A moving track's reported horizontal velocity blended with its corners', each by the inverse of
+    its variance, where at least ``rule.min_count`` corners are on it; ``velocity_cov`` shrinks alike.
+
+    The corners turn walkers moving whose filter still doubts their speed (labelling.py); what it
+    reports for them is that doubted speed, unless the corners' is blended in.
+    """
+    held = t.moving & (t.corner_count >= max(rule.min_count, 1)) & np.isfinite(t.corner_sigma)
+    if rule.samples <= 0 or not held.any():
+        return
+    reported_var = np.maximum(0.5 * (velocity_cov[:, 0, 0] + velocity_cov[:, 1, 1]), 1e-12)
+    sigma = np.where(held, t.corner_sigma, 1.0)
+    w = np.where(held, reported_var / (reported_var + sigma * sigma), 0.0)  # the corners' weight
+    velocity[:, 0:2] += w[:, None] * (t.corner_velocity - velocity[:, 0:2])
+    velocity_cov[:, 0:2, 0:2] *= (1.0 - w)[:, None, None]

@@ -15,6 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.messages import Clusters, EgoMotion, Obstacle, Obstacles
+from services.tracker.keypoint_motion import NO_CORNERS, CornerRule, blend_corners
 from services.tracker.motion_state import speed_and_sigma
 from services.tracker.motion_window import line_velocity
 from services.tracker.track import QUEUE_NAMES, TrackTable
@@ -55,7 +56,12 @@ class FaceVelocity:
 
 
 def obstacles_of(
-    t: TrackTable, ego_velocity: NDArray, clusters: Clusters, ego: EgoMotion, faces: FaceVelocity | None = None
+    t: TrackTable,
+    ego_velocity: NDArray,
+    clusters: Clusters,
+    ego: EgoMotion,
+    faces: FaceVelocity | None = None,
+    corners: CornerRule = NO_CORNERS,
 ) -> Obstacles:
     """The message for this frame; arrays are fresh copies, never views of the track store."""
     centroid = t.x[:, 0:3] + t.offset
@@ -65,6 +71,8 @@ def obstacles_of(
     velocity_cov = t.p[:, 3:6, 3:6].copy()
     if faces is not None and len(t):
         faces.blend(t, velocity, velocity_cov)
+    if len(t):
+        blend_corners(t, corners, velocity, velocity_cov)
     speed, _ = speed_and_sigma(velocity, velocity_cov)
     rotation = ego.pose[0:3, 0:3] if np.isfinite(ego.pose).all() else np.eye(3)
     velocity_rel = (velocity - ego_velocity) @ rotation  # R^T (v - v_ego), row-wise
