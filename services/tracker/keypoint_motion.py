@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -86,65 +87,137 @@ class CornerHistory:
             self.epoch = epoch
         ids = np.asarray(ids, dtype=np.int64)
         xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
-        seen = np.isin(self.ids, ids)
-        kept = ~seen & (self.missed < MAX_GAP)
-        all_ids = np.concatenate([ids, self.ids[kept]])
-        order = np.argsort(all_ids, kind="stable")
-        m, k = len(ids), int(kept.sum())
-        xy, t = np.zeros((m + k, HISTORY, 2)), np.zeros((m + k, HISTORY))
-        n, missed = np.ones(m + k, dtype=np.int64), np.zeros(m + k, dtype=np.int64)
-        now, doubt = np.full((m + k, 3), np.nan), np.concatenate([np.asarray(std, dtype=np.float64), self.std[kept]])
-        at = np.searchsorted(self.ids, ids)  # self.ids is sorted
-        known = np.zeros(m, dtype=bool)
-        if len(self.ids):
-            at = np.minimum(at, len(self.ids) - 1)
-            known = self.ids[at] == ids
-        rows = np.flatnonzero(known)
-        xy[rows, :-1], t[rows, :-1] = self.xy[at[known], 1:], self.t[at[known], 1:]
-        n[rows] = np.minimum(self.n[at[known]] + 1, HISTORY)
-        xy[:m, -1], t[:m, -1], now[:m] = xyz[:, 0:2], clock, xyz
-        xy[m:], t[m:], n[m:], missed[m:] = self.xy[kept], self.t[kept], self.n[kept], self.missed[kept] + 1
-        self.ids, self.xy, self.t, self.n = all_ids[order], xy[order], t[order], n[order]
-        self.missed, self.now, self.std = missed[order], now[order], doubt[order]
+        std = np.asarray(std, dtype=np.float64)
+        if len(ids) > 1 and not (ids[1:] > ids[:-1]).all():  # the stereo stage sends them in order
+            order = np.unique(ids, return_index=True)[1]
+            ids, xyz, std = ids[order], xyz[order], std[order]
+        state = _merge(self.ids, self.xy, self.t, self.n, self.missed, self.std, ids, xyz, std, clock, MAX_GAP)
+        self.ids, self.xy, self.t, self.n, self.missed, self.now, self.std = state
 
-    def velocities(self, min_samples: int) -> tuple[NDArray, NDArray, NDArray]:
-        """Which corners were seen this frame with ``min_samples`` positions or more, their velocities (m, 2)
-        and the doubt (m,) their range's brings to them."""
-        ready = (self.n >= max(min_samples, 2)) & (self.missed == 0)
-        xy, t, n = self.xy[ready], self.t[ready], self.n[ready]
-        w = (np.arange(HISTORY)[None, :] >= HISTORY - n[:, None]).astype(np.float64)  # the last n slots
-        t_mean = (w * t).sum(axis=1) / n
-        dt = (t - t_mean[:, None]) * w
-        xy_mean = (w[:, :, None] * xy).sum(axis=1) / n[:, None]
-        denom = (dt * dt).sum(axis=1)
-        slope = (dt[:, :, None] * (xy - xy_mean[:, None, :])).sum(axis=1) / np.maximum(denom, 1e-12)[:, None]
-        return ready, slope, self.std[ready] / np.sqrt(np.maximum(denom, 1e-12))
+    def ready(self, min_samples: int) -> NDArray:
+        """Which corners were seen this frame with ``min_samples`` positions or more."""
+        return (self.n >= max(min_samples, 2)) & (self.missed == 0)
+
+    def velocities(self, rows: NDArray) -> tuple[NDArray, NDArray]:
+        """The velocities (m, 2) of the lines through these corners' positions, and the doubt (m,) their
+        range's brings to them."""
+        rows = np.asarray(rows, dtype=np.int64)
+        slope, spread = _fit_lines(self.xy, self.t, self.n, rows)
+        return slope, self.std[rows] * spread
+
+
+@numba.njit(cache=True)
+def _merge(
+    ids: NDArray, xy: NDArray, t: NDArray, n: NDArray, missed: NDArray, std: NDArray,
+    new_ids: NDArray, new_xyz: NDArray, new_std: NDArray, clock: float, max_gap: int,
+) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, NDArray, NDArray]:  # fmt: skip
+    """The histories after this frame, both id lists sorted: a seen corner's shifted by one slot with
+    its new position last, an unseen one's kept as it was for ``max_gap`` frames. Compiled: the same
+    with numpy's set operations took 0.3 ms a frame for 1,800 corners."""
+    size = ids.shape[0] + new_ids.shape[0]
+    o_ids, o_xy, o_t = np.empty(size, np.int64), np.zeros((size, HISTORY, 2)), np.zeros((size, HISTORY))
+    o_n, o_missed, o_std = np.ones(size, np.int64), np.zeros(size, np.int64), np.zeros(size)
+    o_now = np.full((size, 3), np.nan)
+    i = j = k = 0
+    while i < ids.shape[0] or j < new_ids.shape[0]:
+        if j < new_ids.shape[0] and (i >= ids.shape[0] or new_ids[j] <= ids[i]):
+            if i < ids.shape[0] and new_ids[j] == ids[i]:  # seen again: shift its history by one
+                o_xy[k, : HISTORY - 1] = xy[i, 1:]
+                o_t[k, : HISTORY - 1] = t[i, 1:]
+                o_n[k] = min(n[i] + 1, HISTORY)
+                i += 1
+            o_ids[k] = new_ids[j]
+            o_xy[k, HISTORY - 1, 0], o_xy[k, HISTORY - 1, 1] = new_xyz[j, 0], new_xyz[j, 1]
+            o_t[k, HISTORY - 1], o_now[k], o_std[k] = clock, new_xyz[j], new_std[j]
+            j += 1
+            k += 1
+        else:  # not seen this frame
+            if missed[i] < max_gap:
+                o_ids[k], o_xy[k], o_t[k], o_n[k] = ids[i], xy[i], t[i], n[i]
+                o_missed[k], o_std[k] = missed[i] + 1, std[i]
+                k += 1
+            i += 1
+    return o_ids[:k], o_xy[:k], o_t[:k], o_n[:k], o_missed[:k], o_now[:k], o_std[:k]
+
+
+@numba.njit(cache=True)
+def _fit_lines(xy: NDArray, t: NDArray, n: NDArray, rows: NDArray) -> tuple[NDArray, NDArray]:
+    """Least-squares slopes of x and y against time over each row's last ``n`` slots, and the factor
+    1 / sqrt(sum (t - mean t)^2) that turns a position's doubt into the slope's. Compiled: the same in
+    numpy over every corner took a millisecond a frame."""
+    slope, factor = np.zeros((rows.shape[0], 2)), np.zeros(rows.shape[0])
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        first = HISTORY - n[r]
+        t_mean = x_mean = y_mean = 0.0
+        for k in range(first, HISTORY):
+            t_mean += t[r, k]
+            x_mean += xy[r, k, 0]
+            y_mean += xy[r, k, 1]
+        t_mean, x_mean, y_mean = t_mean / n[r], x_mean / n[r], y_mean / n[r]
+        tt = tx = ty = 0.0
+        for k in range(first, HISTORY):
+            d = t[r, k] - t_mean
+            tt += d * d
+            tx += d * (xy[r, k, 0] - x_mean)
+            ty += d * (xy[r, k, 1] - y_mean)
+        tt = max(tt, 1e-12)
+        slope[i, 0], slope[i, 1], factor[i] = tx / tt, ty / tt, 1.0 / np.sqrt(tt)
+    return slope, factor
 
 
 def corner_velocity(history: CornerHistory, pieces: list[Cluster], edge: float, min_samples: int) -> CornerVelocity:
     """Each piece's corners (those in its voxels this frame) and their median velocity."""
     n = len(pieces)
-    out = CornerVelocity(np.zeros((n, 2)), np.full(n, np.inf), np.zeros(n, dtype=np.int64))
-    ready, velocity, doubt = history.velocities(min_samples)
-    if n == 0 or not ready.any():
-        return out
-    keys = [pack_cells(np.asarray(p.voxels).reshape(-1, 3)) for p in pieces]
-    owner = np.repeat(np.arange(n), [len(k) for k in keys])
-    all_keys = np.concatenate(keys)
-    order = np.argsort(all_keys, kind="stable")
-    all_keys, owner = all_keys[order], owner[order]
+    ready = np.flatnonzero(history.ready(min_samples))
+    voxels = [np.asarray(p.voxels).reshape(-1, 3) for p in pieces]
+    if n == 0 or len(ready) == 0 or sum(len(v) for v in voxels) == 0:
+        return CornerVelocity(np.zeros((n, 2)), np.full(n, np.inf), np.zeros(n, dtype=np.int64))
+    owner = np.repeat(np.arange(n), [len(v) for v in voxels])
+    keys = pack_cells(np.concatenate(voxels))
+    order = np.argsort(keys, kind="stable")  # numpy's radix sort: five times a compiled quicksort's speed
     corner_keys = pack_cells(np.floor(history.now[ready] / edge))
-    at = np.minimum(np.searchsorted(all_keys, corner_keys), len(all_keys) - 1)
-    on = all_keys[at] == corner_keys
-    whose, velocity, doubt = owner[at[on]], velocity[on], doubt[on]
-    for j in np.unique(whose):
-        mine = whose == j
-        v, m = velocity[mine], int(mine.sum())
-        median = np.median(v, axis=0)
-        spread = MAD_SIGMA * np.median(np.linalg.norm(v - median, axis=1)) / np.sqrt(m)
-        stereo = float(np.median(doubt[mine])) * np.sqrt(SHARED + (1.0 - SHARED) / m)
-        out.velocity[j], out.count[j], out.sigma[j] = median, m, max(spread, stereo)
-    return out
+    velocity, spread, stereo, count = _piece_velocities(
+        keys[order], owner[order], corner_keys, ready, history.xy, history.t, history.n, history.std, n
+    )
+    m = np.maximum(count, 1).astype(np.float64)
+    sigma = np.maximum(MAD_SIGMA * spread / np.sqrt(m), stereo * np.sqrt(SHARED + (1.0 - SHARED) / m))
+    return CornerVelocity(velocity, np.where(count > 0, sigma, np.inf), count)
+
+
+@numba.njit(cache=True)
+def _piece_velocities(
+    keys: NDArray, owner: NDArray, corner_keys: NDArray, rows: NDArray,
+    xy: NDArray, t: NDArray, n: NDArray, std: NDArray, pieces: int,
+) -> tuple[NDArray, NDArray, NDArray, NDArray]:  # fmt: skip
+    """Per piece, from the corners (``rows``) whose voxel key is one of its (``keys`` sorted, ``owner``
+    says whose): the median of their lines' velocities (x, y), the median distance from it, the median
+    doubt their ranges bring, and how many. Compiled: numpy took 0.4 ms a frame in some thirty calls."""
+    whose = np.full(corner_keys.shape[0], -1, np.int64)
+    count = np.zeros(pieces, np.int64)
+    for c in range(corner_keys.shape[0]):
+        at = np.searchsorted(keys, corner_keys[c])
+        if at < keys.shape[0] and keys[at] == corner_keys[c]:
+            whose[c] = owner[at]
+            count[owner[at]] += 1
+    start = np.zeros(pieces + 1, np.int64)
+    start[1:] = np.cumsum(count)
+    fill, members = start[:-1].copy(), np.empty(start[-1], np.int64)
+    for c in range(corner_keys.shape[0]):
+        if whose[c] >= 0:
+            members[fill[whose[c]]] = rows[c]
+            fill[whose[c]] += 1
+    velocity, spread, stereo = np.zeros((pieces, 2)), np.zeros(pieces), np.zeros(pieces)
+    for p in range(pieces):
+        if count[p] == 0:
+            continue
+        mine = members[start[p] : start[p + 1]]
+        slope, factor = _fit_lines(xy, t, n, mine)
+        vx, vy = np.median(slope[:, 0]), np.median(slope[:, 1])
+        velocity[p, 0], velocity[p, 1] = vx, vy
+        spread[p] = np.median(np.sqrt((slope[:, 0] - vx) ** 2 + (slope[:, 1] - vy) ** 2))
+        stereo[p] = np.median(std[mine] * factor)
+    return velocity, spread, stereo, count
 
 
 def blend_corners(t: TrackTable, rule: CornerRule, velocity: NDArray, velocity_cov: NDArray) -> None:
