@@ -69,19 +69,19 @@ class StereoDepth:
         disparity = self._timed("match", lambda: self._disparity(frame))  # SGM at two resolutions, checked
         points, colors = self._timed("reproject", lambda: self.reprojector.points(disparity, frame.left, frame.calib))
         cloud, disp = self._messages(frame, points, colors, disparity)
-        if self.keypoint_tracker is not None and not self.last_degenerate:
-            keypoints = self._timed("keypoints", lambda: self._keypoints(frame, disparity))
+        tracker = self.keypoint_tracker
+        if tracker is not None and not self.last_degenerate:
+            keypoints = self._timed("keypoints", lambda: self._keypoints(tracker, frame, disparity))
             std_px = self.cfg.keypoint_disparity_std_px
             cloud.keypoint_ids, cloud.keypoints, cloud.keypoint_std = self.reprojector.keypoints(
                 keypoints, frame.calib, std_px
             )
         return cloud, disp
 
-    def _keypoints(self, frame: StereoFrame, disparity: DisparityMap) -> Keypoints:
-        assert self.keypoint_tracker is not None
+    def _keypoints(self, tracker: KeypointTracker, frame: StereoFrame, disparity: DisparityMap) -> Keypoints:
         left, right = (cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2GRAY) for img in (frame.left, frame.right))
         reach = frame.calib.fx * frame.calib.baseline / self.volume_reach_m  # nothing beyond the volume
-        return self.keypoint_tracker.update(left, right, disparity, frame.frame_id, reach)
+        return tracker.update(left, right, disparity, frame.frame_id, reach)
 
     def step_timings_ms(self) -> dict[str, float]:
         """The last frame's milliseconds per step: sgbm_coarse, sgbm_fine, lr_check, fill, subpixel, reproject,

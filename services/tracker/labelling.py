@@ -3,8 +3,9 @@
 The filter's bound is its speed less some of its own doubt (motion_state.label); the faces' bound
 is the slope of the track's last faces less their scatter (motion_window.py). A track turns
 moving only when both clear the threshold, so a velocity the filter learnt from a face that slid
-is not believed until the faces move too. Five refinements, each measured on tracker replays
-(docs/results/tracking.md):
+is not believed until the faces move too; or when the corners the stereo stage follows on it are
+sure it moves (``by_corners``, keypoint_motion.py, "Session 40"). Five refinements of the first
+rule, each measured on tracker replays (docs/results/tracking.md):
 
 - a narrow track (a walker, a cyclist, a pole) may be labelled by its motion across the line of
   sight, which stereo measures by bearing, not by its smeared range ("Session 17");
