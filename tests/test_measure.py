@@ -6,8 +6,12 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import pytest
 from conftest import load_script
 
+from common.evaluation.evaluate import matched_frames
+from common.evaluation.inputs import read_inputs
 from common.recording import open_recording
 from services.demo import BUNDLED
 from services.pipeline import process_file
@@ -53,3 +57,22 @@ def test_runs_of_an_earlier_measurement_are_restarted_with_the_new_settings(tmp_
     assert restarted.config_dict()["tracker"]["accept_frames"] == 3
     assert restarted.info()["processed_by"] == "stereovox process --from tracker"
     assert measure.measure("urban-s8", render, out, [], ("tracker", runs)) is None  # not in the folder: left out
+
+
+def test_a_speed_trace_follows_one_moving_object_frame_by_frame(tmp_path: Path) -> None:
+    """scripts/speed_trace.py: the truth's speed and the matched obstacle's, from a run, and its picture."""
+    trace = load_script("speed_trace")
+    run = tmp_path / "urban_run.mcap"
+    assert process_file(BUNDLED, run, max_frames=16, with_frames=False) == 16
+    last = matched_frames(read_inputs(run))[-1]
+    mover = max(last.truths, key=lambda t: float(np.hypot(*t.velocity[:2])))  # the fastest: a car
+    frames, true, seen, moving = trace.trace(run, mover.id)
+    assert len(frames) == len(true) == len(seen) == len(moving) and frames[-1] == last.frame_id
+    assert true[-1] == pytest.approx(float(np.hypot(*mover.velocity[:2])))
+    assert any(moving) and all(abs(s - v) < 3.0 for s, v, m in zip(seen, true, moving, strict=True) if m)
+    out = tmp_path / "trace.png"
+    argv = ["speed_trace.py", str(run), "--truth", str(mover.id), "--out", str(out)]
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("sys.argv", argv)
+        assert trace.main() == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
