@@ -16,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.config import VolumeConfig
+from common.geometry import transform
 from common.messages import Calibration
 from services.stereo_depth.keypoints import Keypoints
 from services.stereo_depth.ramps import RampFilter
@@ -122,8 +123,7 @@ class Reprojector:
         ids, uv, disp = keypoints.ids[near], keypoints.uv[near], disp[near].astype(np.float64)
         z = calib.fx * calib.baseline / disp
         camera = np.stack([(uv[:, 0] - calib.cx) * z / calib.fx, (uv[:, 1] - calib.cy) * z / calib.fy, z], axis=1)
-        pose = np.asarray(calib.cam_to_vehicle, dtype=np.float64)
-        points = (camera @ pose[:3, :3].T + pose[:3, 3]).astype(np.float32)
+        points = transform(np.asarray(calib.cam_to_vehicle, dtype=np.float64), camera).astype(np.float32)
         return ids, points, (disparity_std_px * z / disp).astype(np.float32)
 
     def _rays_for(self, calib: Calibration, shape: tuple[int, ...]) -> Rays:

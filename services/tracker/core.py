@@ -156,7 +156,6 @@ class Tracker:
             narrow_by_points,
             corners,
         )
-        self.corner_samples = corners.samples
         self.corner_rule = corners
         self.corners = CornerHistory()  # the stereo stage's followed corners (keypoint_motion.py)
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
@@ -223,7 +222,7 @@ class Tracker:
             return obstacles_of(self.tracks, self.ego.velocity, clusters, ego, self.faces, self.corner_rule)
         dt, elapsed = self.guard.step(clusters)
         self._clock += dt
-        if self.corner_samples > 0:
+        if self.corner_rule.samples > 0:
             self.corners.update(
                 clusters.keypoint_ids, clusters.keypoints, clusters.keypoint_std, self._clock, clusters.world_epoch
             )
@@ -416,9 +415,9 @@ class Tracker:
         """The velocity of the corners on each track's cluster this frame; none on an unseen track."""
         t = self.tracks
         t.corner_count[:] = 0
-        if self.corner_samples <= 0 or len(rows) == 0:
+        if self.corner_rule.samples <= 0 or len(rows) == 0:
             return
-        c = corner_velocity(self.corners, pieces, edge, self.corner_samples)
+        c = corner_velocity(self.corners, pieces, edge, self.corner_rule.samples)
         t.corner_velocity[rows], t.corner_sigma[rows], t.corner_count[rows] = c.velocity, c.sigma, c.count
 
     def _swallowed(self, rows: NDArray, obs: Observations) -> NDArray:
