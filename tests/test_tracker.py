@@ -1259,7 +1259,7 @@ def footprints_after(pieces_by_frame: list[tuple[list[Cluster], int]], frames: i
     out = []
     for pieces, index in pieces_by_frame:
         rows = np.array([0])
-        obs, _ = observe(pieces, np.eye(4), EDGE)
+        obs, _, _ = observe(pieces, np.eye(4), EDGE)
         out.append(len(left.slid(np.array([7]), rows, np.array([index]), obs, pieces, np.array([False]), EDGE)) == 1)
     return out
 

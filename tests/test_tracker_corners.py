@@ -9,6 +9,7 @@ import pytest
 from test_tracker import EDGE, box_voxels, new_tracker, of_voxels, step
 
 from common.messages import Cluster, Clusters, EgoMotion
+from services.tracker.anchor import footprint
 from services.tracker.keypoint_motion import HISTORY, MAX_GAP, CornerHistory, corner_velocity
 
 PERIOD_S = 0.1
@@ -80,7 +81,8 @@ def test_a_clusters_corners_outvote_a_standing_neighbours_merged_into_it() -> No
     velocity = np.zeros_like(start)
     velocity[:6, 0] = 1.5
     history = _history(HISTORY, np.arange(len(start)), start, velocity)
-    found = corner_velocity(history, [walker_bin, post], EDGE, min_samples=6)
+    stacked = footprint([walker_bin, post])
+    found = corner_velocity(history, stacked.voxels, stacked.counts, np.arange(2), 2, EDGE, min_samples=6)
     assert found.count.tolist() == [8, 3]
     np.testing.assert_allclose(found.velocity[0], [1.5, 0.0], atol=1e-6)
     np.testing.assert_allclose(found.velocity[1], [0.0, 0.0], atol=1e-6)

@@ -39,7 +39,7 @@ difference of the two points of the same cluster).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import numba
 import numpy as np
@@ -67,7 +67,17 @@ ALONG_ROAD_M: float = 6.0
 RANGE_TRIM: float = 0.25
 
 
-def _stacked(clusters: list[Cluster]) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+class Footprint(NamedTuple):
+    """Clusters' voxels in a row: stacked once a frame for their anchors, and for the corners on them
+    (keypoint_motion.py)."""
+
+    voxels: NDArray  # (k, 3) int64, cluster by cluster
+    counts: NDArray  # (n,) how many each cluster has
+    weights: NDArray  # (k,) this frame's points per voxel (+ 1e-3), or 1 where the cluster has no counts
+    counted: NDArray  # (n,) which clusters' voxels have their points counted
+
+
+def footprint(clusters: list[Cluster]) -> Footprint:
     """All clusters' voxels in a row, their counts, this frame's points per voxel, and which are counted.
 
     A cluster from a recording made before the mapper counted points weighs its voxels alike. One
@@ -84,7 +94,7 @@ def _stacked(clusters: list[Cluster]) -> tuple[NDArray, NDArray, NDArray, NDArra
     stacked = np.concatenate(voxels).astype(np.int64) if voxels else np.zeros((0, 3), np.int64)
     weights = np.concatenate(points).astype(np.float64) if points else np.zeros(0)
     # + 1e-3: a voxel kept without points this frame counts a little
-    return stacked, counts, np.where(np.repeat(counted, counts), weights + 1e-3, weights), counted
+    return Footprint(stacked, counts, np.where(np.repeat(counted, counts), weights + 1e-3, weights), counted)
 
 
 @numba.njit(cache=True)
@@ -262,6 +272,7 @@ def anchors(
     edge: float,
     view: NDArray | None = None,
     view_margin: float = 0.0,
+    stacked: Footprint | None = None,
 ) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, NDArray]:
     """World points (n, 3 sides, 3), the side in view (n,), the far-end shift (n, 3), which are narrow
     (n,), which are cut by the image's side edge (n,; ``view`` as ``Clusters.view``) and how wide
@@ -275,6 +286,7 @@ def anchors(
     vehicle's x (the high percentile), the other end of the object: a rigid object's two ends move
     together, a box growing or uncovered at one end moves only that end (motion_window.py).
     A percentile is the first voxel whose running count (or running points) reaches its share.
+    ``stacked`` is ``footprint(clusters)``, where the caller has it already.
     """
     n = len(clusters)
     centroids = np.ascontiguousarray(centroids, dtype=np.float64).reshape(n, 3)
@@ -287,7 +299,7 @@ def anchors(
             np.zeros(n, dtype=bool),
             np.full((n, 2), np.nan),
         )
-    voxels, counts, weights, counted = _stacked(clusters)
+    voxels, counts, weights, counted = footprint(clusters) if stacked is None else stacked
     # copies: a message decoded off the bus holds read-only arrays, which numba would compile for again
     seen = NO_VIEW if view is None else np.array(view, dtype=np.float64)
     return _place(

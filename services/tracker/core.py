@@ -40,6 +40,7 @@ import numpy.typing as npt
 from common.config import Config, VolumeConfig
 from common.messages import Cluster, Clusters, EgoMotion, Obstacles
 from services.tracker import kalman, motion_window
+from services.tracker.anchor import Footprint
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
 from services.tracker.clock import FrameClock
 from services.tracker.faces import turn_ends, turn_sides
@@ -232,7 +233,7 @@ class Tracker:
         sight = Sight(pose[0:3, 3], clusters.voxel_edge)
         self._parts = set()
         pieces = self._gather(clusters, sight, pose)
-        obs = self._observe(pieces, pose, clusters.voxel_edge, clusters.view)
+        obs, stacked = self._observe(pieces, pose, clusters.voxel_edge, clusters.view)
         parted = np.zeros(len(obs), dtype=bool)
         if self._parts:
             parted[:] = [id(pieces[int(i)]) in self._parts for i in obs.index]
@@ -243,7 +244,7 @@ class Tracker:
         if trusted:
             self._correct(rows, obs.take(cols), r[cols])
         piece_of = {int(i): pieces[int(obs.index[j])] for i, j in zip(rows, cols, strict=True)}
-        self._corner_velocity(rows, [piece_of[int(i)] for i in rows], clusters.voxel_edge)
+        self._corner_velocity(rows, cols, stacked, clusters.voxel_edge)
         if trusted:
             slid = self.left_behind.slid(
                 self.tracks.ids, rows, cols, obs, pieces, self.tracks.moving, clusters.voxel_edge
@@ -290,12 +291,14 @@ class Tracker:
         self.counters["parted"] += n
         return out
 
-    def _observe(self, clusters: list[Cluster], pose: NDArray, edge: float, view: NDArray) -> Observations:
-        obs, dropped = observe(clusters, pose, edge, view, self.view_margin_m)
+    def _observe(
+        self, clusters: list[Cluster], pose: NDArray, edge: float, view: NDArray
+    ) -> tuple[Observations, Footprint]:
+        obs, stacked, dropped = observe(clusters, pose, edge, view, self.view_margin_m)
         self.counters["nan_clusters"] += dropped
         if len(obs) == 0:
             self.counters["empty_frames"] += 1
-        return obs
+        return obs, stacked
 
     # ------------------------------------------------------------------ the paper's steps
 
@@ -411,13 +414,17 @@ class Tracker:
         )
         t.density[rows] += a * (obs.density - t.density[rows])
 
-    def _corner_velocity(self, rows: NDArray, pieces: list[Cluster], edge: float) -> None:
-        """The velocity of the corners on each track's cluster this frame; none on an unseen track."""
+    def _corner_velocity(self, rows: NDArray, cols: NDArray, stacked: Footprint, edge: float) -> None:
+        """The velocity of the corners on each track's cluster (observation ``cols``) this frame; none
+        on an unseen track."""
         t = self.tracks
         t.corner_count[:] = 0
         if self.corner_rule.samples <= 0 or len(rows) == 0:
             return
-        c = corner_velocity(self.corners, pieces, edge, self.corner_rule.samples)
+        slot = np.full(len(stacked.counts), -1, dtype=np.int64)
+        slot[cols] = np.arange(len(cols))
+        rule = self.corner_rule
+        c = corner_velocity(self.corners, stacked.voxels, stacked.counts, slot, len(rows), edge, rule.samples)
         t.corner_velocity[rows], t.corner_sigma[rows], t.corner_count[rows] = c.velocity, c.sigma, c.count
 
     def _swallowed(self, rows: NDArray, obs: Observations) -> NDArray:

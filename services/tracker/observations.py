@@ -10,7 +10,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.messages import Cluster
-from services.tracker.anchor import anchors
+from services.tracker.anchor import Footprint, anchors, footprint
 
 NDArray = npt.NDArray[Any]
 
@@ -59,8 +59,9 @@ class Observations:
 
 def observe(
     clusters: list[Cluster], pose: NDArray, edge: float, view: NDArray | None = None, view_margin: float = 0.0
-) -> tuple[Observations, int]:
-    """Stack the clusters' features; return them and how many were dropped as non-finite.
+) -> tuple[Observations, Footprint, int]:
+    """Stack the clusters' features; return them, the kept clusters' voxels, and how many were dropped
+    as non-finite.
 
     A cluster with a NaN or infinite centroid, box, colour or density cannot be predicted, compared
     or filtered, and one bad row would poison the whole batched filter, so it is dropped here.
@@ -75,9 +76,9 @@ def observe(
     scalars = np.hstack([stacked("density", 1), stacked("volume", 1)])
     finite = np.isfinite(geometry).all(axis=1) & np.isfinite(colour).all(axis=1) & np.isfinite(scalars).all(axis=1)
     keep = np.flatnonzero(finite)
-    points, side, far, narrow, cut, spread = anchors(
-        [clusters[i] for i in keep.tolist()], geometry[keep, 0:3], pose, edge, view, view_margin
-    )
+    kept = [clusters[i] for i in keep.tolist()]
+    stacked = footprint(kept)
+    points, side, far, narrow, cut, spread = anchors(kept, geometry[keep, 0:3], pose, edge, view, view_margin, stacked)
     obs = Observations(
         index=keep,
         centroid=geometry[keep, 0:3],
@@ -95,4 +96,4 @@ def observe(
         density=scalars[keep, 0],
         volume=scalars[keep, 1],
     )
-    return obs, n - int(keep.shape[0])
+    return obs, stacked, n - int(keep.shape[0])
