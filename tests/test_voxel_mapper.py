@@ -426,3 +426,33 @@ def test_a_car_and_a_gap_in_a_wall_are_not_cut_as_people() -> None:
     wall = [box((20.0, y0, 0.0), (20.5, y1, 2.0), BLUE, seed=2) for y0, y1 in ((3.0, 5.0), (5.6, 7.6))]
     sill = box((20.0, 5.0, 1.8), (20.5, 5.6, 2.0), BLUE, step=0.08, seed=4)
     assert len(mapper().process(cloud(road(), car, *wall, sill), ego()).clusters) == 2
+
+
+def test_only_corners_that_have_lain_on_a_cluster_are_passed_on() -> None:
+    # a red box ahead on the road; corner 1 on its face, corner 2 on the road, corner 3 in the air
+    scene = (box((10.0, -0.5, 0.0), (11.0, 0.5, 1.5), RED), road())
+    ids = np.array([1, 2, 3])
+    on_box, on_road, in_air = [10.0, 0.1, 0.8], [6.0, 2.0, 0.01], [14.0, -3.0, 2.0]
+    vm = mapper()
+
+    def passed(corners: list[list[float]], frame: int) -> list[int]:
+        c = cloud(*scene, frame_id=frame)
+        c.keypoint_ids, c.keypoints = ids, np.array(corners, dtype=np.float32)
+        c.keypoint_std = np.full(3, 0.05, np.float32)
+        out = vm.process(c, ego(frame_id=frame))
+        assert len(out.keypoints) == len(out.keypoint_std) == len(out.keypoint_ids)
+        return out.keypoint_ids.tolist()
+
+    assert passed([on_box, on_road, in_air], 0) == [1]
+    # the box's corner strays a voxel off its surface (its own disparity): it is still passed on,
+    # while the road's, now on the box, is passed on from here
+    assert passed([[9.6, 0.1, 0.8], on_box, in_air], 1) == [1, 2]
+    assert passed([in_air, in_air, in_air], 2) == [1, 2]
+
+
+def test_slots_at_finds_the_voxel_a_point_lies_in() -> None:
+    vm = mapper()
+    vm.process(cloud(box((10.0, -0.5, 0.0), (11.0, 0.5, 1.5), RED)), ego())
+    slots = vm.map.slots_at(np.array([[10.0, 0.1, 0.8], [20.0, 0.0, 0.5], [np.nan, 0.0, 0.0]]))
+    assert slots[0] >= 0 and slots[1:].tolist() == [-1, -1]
+    assert (vm.map.coords[slots[0]] == np.floor(np.array([10.0, 0.1, 0.8]) / vm.map.edge)).all()

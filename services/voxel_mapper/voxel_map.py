@@ -65,6 +65,17 @@ def find(table_keys: I64, table_slots: npt.NDArray[np.int32], shift: int, key: i
 
 
 @numba.njit(cache=True)
+def _slots_at(points: F64, edge: float, table_keys: I64, table_slots: npt.NDArray[np.int32], shift: int) -> I64:
+    """The slot of the voxel each world point lies in, or EMPTY."""
+    out = np.full(points.shape[0], EMPTY, np.int64)
+    for p in range(points.shape[0]):
+        fi, fj, fk = np.floor(points[p, 0] / edge), np.floor(points[p, 1] / edge), np.floor(points[p, 2] / edge)
+        if abs(fi) < OFFSET and abs(fj) < OFFSET and abs(fk) < OFFSET:  # not NaN, not off the keys
+            out[p] = find(table_keys, table_slots, shift, pack(np.int64(fi), np.int64(fj), np.int64(fk)))
+    return out
+
+
+@numba.njit(cache=True)
 def _rebuild(keys: I64, n: int, table_keys: I64, table_slots: npt.NDArray[np.int32], shift: int) -> None:
     table_slots[:] = EMPTY
     mask = table_keys.shape[0] - 1
@@ -220,6 +231,12 @@ class VoxelMap:
         """Slot of the voxel at integer coordinates (i, j, k), or -1 where it is empty."""
         i, j, k = (int(c) for c in coords)
         return int(find(self.table_keys, self.table_slots, self.shift, pack(i, j, k)))
+
+    def slots_at(self, points: F64) -> I64:
+        """The slot of the voxel each world point (Nx3) lies in, ``floor(p / edge)`` as the tracker
+        places them, or -1 where that voxel is empty."""
+        pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        return _slots_at(pts, self.edge, self.table_keys, self.table_slots, self.shift)
 
     # ---- per-voxel data of the first ``n`` slots
 
