@@ -226,7 +226,7 @@ def _piece_velocities(
     xy: NDArray, t: NDArray, std: NDArray, pieces: int,
 ) -> tuple[NDArray, NDArray, NDArray, NDArray]:  # fmt: skip
     """Per piece, from the corners seen this frame with ``min_n`` positions or more that lie in one of
-    its voxels (``voxels`` in a row, ``owner`` says whose; -1: nobody's, the first owner wins): the
+    its voxels (``voxels`` in a row, ``owner`` says whose; -1: nobody's; of two, the lower): the
     median of their lines' velocities (x, y), the median distance from it, the median doubt their
     ranges bring, and how many.
 
@@ -257,7 +257,9 @@ def _piece_velocities(
         h = _probe(table, key)
         c = head[h] if table[h] == key else -1
         while c >= 0:
-            if whose[c] < 0:
+            if whose[c] < 0 or owner[v] < whose[c]:
+                if whose[c] >= 0:
+                    count[whose[c]] -= 1
                 whose[c] = owner[v]
                 count[owner[v]] += 1
             c = chain[c]
