@@ -213,7 +213,8 @@ class Clusters(Message):
     # bearings: the image's side edges, which cut what stands beside the road. Unknown (older
     # recordings, an empty cloud) when the left slope is not above the right one.
     view: NDArray = array_field("float64", (4,), _zeros(4))
-    # the cloud's followed corners (PointCloud.keypoint_ids), placed in the world with the clusters
+    # the cloud's followed corners (PointCloud.keypoint_ids) that have lain in a cluster's voxel since
+    # they were first followed (voxel_mapper/core.py), placed in the world with the clusters
     keypoint_ids: NDArray = array_field("int64", (None,), _zeros(0, dtype="int64"))
     keypoints: NDArray = array_field("float64", (None, 3), _zeros(0, 3))
     keypoint_std: NDArray = array_field("float32", (None,), _zeros(0, dtype="float32"))
