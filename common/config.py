@@ -247,6 +247,7 @@ class TrackerConfig:
     corner_min_count: int = 5  # a track's corners have an opinion when it holds this many (measured 3, 4, 5)
     corner_on_mps: float = 1.0  # ... and their median speed, less its doubt, above this turns it moving
     corner_sigma_k: float = 2.0  # ... that doubt taken this many times (1.5 measured: KITTI 0001 1 false frame)
+    corner_still_mps: float = 1.0  # ... below this, plus its doubt, keeps a track standing (0.8, 1.2 alike; 0: off)
 
 
 @dataclass

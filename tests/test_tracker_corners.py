@@ -146,6 +146,29 @@ def test_a_post_whose_cluster_swings_as_much_is_not(seed: int) -> None:
     assert not any(_noisy_walk(True, 0.0, seed))
 
 
+def _sliding_cluster_over_standing_corners(still_mps: float, frames: int = 16) -> list[bool]:
+    """A cluster that moves away at 1.6 m/s (a pole's smear swinging out, at its worst) while the
+    eight corners in it stand still. Whether any obstacle is labelled moving, frame by frame."""
+    tracker = new_tracker(corner_samples=6, corner_still_mps=still_mps)
+    corners = np.column_stack([np.full(8, 23.1), np.linspace(-0.2, 0.2, 8), np.linspace(0.2, 1.6, 8)])
+    labels = []
+    for k in range(frames):
+        x = 20.0 + 0.16 * k
+        body = of_voxels(box_voxels((x, -0.25, 0.0), (x + 4.5, 0.25, 1.75)))
+        clusters = Clusters(
+            frame_id=k, stamp_ns=k * 100_000_000, clusters=[body], voxel_edge=EDGE,
+            keypoint_ids=np.arange(8), keypoints=corners, keypoint_std=np.full(8, 0.1, dtype=np.float32),
+        )  # fmt: skip
+        found = tracker.process(clusters, EgoMotion(frame_id=k, stamp_ns=k * 100_000_000, valid=True)).obstacles
+        labels.append(any(o.moving for o in found))
+    return labels
+
+
+def test_corners_sure_a_track_stands_keep_it_from_turning_moving() -> None:
+    assert any(_sliding_cluster_over_standing_corners(still_mps=0.0))  # the filter alone calls it moving
+    assert not any(_sliding_cluster_over_standing_corners(still_mps=1.0))
+
+
 def test_a_cluster_without_corners_is_labelled_as_before() -> None:
     # clusters from a recording made before the stereo stage followed corners
     tracker, plain = new_tracker(), new_tracker(corner_samples=0)

@@ -211,7 +211,9 @@ class Tracker:
             ),
             velocity_faces=t.velocity_faces,
             narrow_by_points=t.narrow_by_points,
-            corners=CornerRule(t.corner_samples, t.corner_min_count, t.corner_on_mps, t.corner_sigma_k),
+            corners=CornerRule(
+                t.corner_samples, t.corner_min_count, t.corner_on_mps, t.corner_sigma_k, t.corner_still_mps
+            ),
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:

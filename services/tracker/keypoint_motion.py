@@ -43,6 +43,7 @@ class CornerRule:
     min_count: int = 0  # corners a track needs for their opinion
     on_mps: float = 0.0  # the speed they must be sure of to turn it moving
     sigma_k: float = 0.0  # ... sure by this many of their sigmas
+    still_mps: float = 0.0  # sure (as above) that it is slower than this, they keep it from turning moving; 0: off
 
 
 NO_CORNERS = CornerRule()

@@ -91,7 +91,19 @@ class MotionLabeller:
         upright_k = k if self.upright_sigma_k is None else self.upright_sigma_k
         sigma_k = np.where(upright, upright_k, k)
         moving = label(t.moving, speed, sigma, slide, t.age, self.hysteresis, confirm, sigma_k)
-        return moving | self.by_corners(t)
+        return (moving & ~self.held_by_corners(t)) | self.by_corners(t)
+
+    def held_by_corners(self, t: TrackTable) -> NDArray:
+        """Which standing tracks the corners on them are sure stand still: none of them turns moving.
+
+        A pole's cluster at 15-25 m swings along the line of sight with the smear around it, and its
+        filter and faces can read a walker's pace for a few frames; the corners on it stay put.
+        """
+        rule = self.corners
+        if rule.samples <= 0 or rule.still_mps <= 0.0:
+            return np.zeros(len(t), dtype=bool)
+        bound = np.hypot(t.corner_velocity[:, 0], t.corner_velocity[:, 1]) + rule.sigma_k * t.corner_sigma
+        return ~t.moving & (t.corner_count >= rule.min_count) & (bound < rule.still_mps)
 
     def by_corners(self, t: TrackTable) -> NDArray:
         """Which tracks the corners on them call moving (keypoint_motion.py).
