@@ -6,12 +6,15 @@ alike, so the layout lives here once.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
 BITS = 21
 OFFSET = 1 << (BITS - 1)  # coordinates in [-OFFSET, OFFSET) fit
 FIELD = (1 << BITS) - 1
+#: Fibonacci hashing's multiplier: a key times it, shifted down, is a table slot (``bucket``).
+GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 
 
 def pack_cells(cells: npt.ArrayLike) -> npt.NDArray[np.int64]:
@@ -28,3 +31,15 @@ def unpack(keys: npt.ArrayLike) -> npt.NDArray[np.int32]:
     out[:, 1] = ((k >> BITS) & FIELD) - OFFSET
     out[:, 2] = (k & FIELD) - OFFSET
     return out
+
+
+@numba.njit(cache=True, inline="always")
+def pack(i: int, j: int, k: int) -> int:
+    """One voxel's key, in compiled code (``pack_cells`` packs many in numpy)."""
+    return ((i + OFFSET) << (2 * BITS)) | ((j + OFFSET) << BITS) | (k + OFFSET)
+
+
+@numba.njit(cache=True, inline="always")
+def bucket(key: int, shift: int) -> int:
+    """Where a key starts its probe in an open-addressing table of ``2 ** (64 - shift)`` slots."""
+    return np.int64((np.uint64(key) * GOLDEN) >> np.uint64(shift))

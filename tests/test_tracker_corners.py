@@ -10,7 +10,7 @@ from test_tracker import EDGE, box_voxels, new_tracker, of_voxels, step
 
 from common.messages import Cluster, Clusters, EgoMotion
 from services.tracker.anchor import footprint
-from services.tracker.keypoint_motion import HISTORY, MAX_GAP, CornerHistory, corner_velocity
+from services.tracker.keypoint_motion import HISTORY, MAX_GAP, CornerHistory, _fit_lines, corner_velocity
 
 PERIOD_S = 0.1
 
@@ -37,9 +37,10 @@ def test_each_corner_gets_the_velocity_of_the_line_through_its_positions() -> No
     start = np.array([[20.0, 0.0, 1.0], [20.0, 1.0, 1.0], [30.0, -3.0, 0.5]])
     velocity = np.array([[1.5, 0.0, 0.0], [-0.5, 1.0, 0.0], [0.0, 0.0, 0.0]])
     history = _history(HISTORY + 3, ids, start, velocity)
-    ready = history.ready(min_samples=6)
+    ready = (history.n >= 6) & (history.missed == 0)
     assert ready.all()
-    fitted, doubt = history.velocities(np.flatnonzero(ready))
+    fitted, factor = _fit_lines(history.xy, history.t, history.n, np.flatnonzero(ready))
+    doubt = history.std * factor
     by_id = dict(zip(history.ids.tolist(), fitted, strict=True))
     for i, v in zip(ids, velocity, strict=True):
         np.testing.assert_allclose(by_id[int(i)], v[:2], atol=1e-9)
@@ -53,8 +54,8 @@ def test_a_corner_missing_a_frame_keeps_its_history_and_one_gone_longer_is_forgo
     # corner 1 has no disparity in frame 5; corner 2 none in frames 3-5 (MAX_GAP + 1)
     gone = set(range(3, 3 + MAX_GAP + 1))
     history = _history(8, ids, start, velocity, skip={5: {1}} | {k: {2} for k in gone if k != 5} | {5: {1, 2}})
-    ready = history.ready(min_samples=6)
-    fitted, _ = history.velocities(np.flatnonzero(ready))
+    ready = (history.n >= 6) & (history.missed == 0)
+    fitted, _ = _fit_lines(history.xy, history.t, history.n, np.flatnonzero(ready))
     n = dict(zip(history.ids.tolist(), history.n.tolist(), strict=True))
     assert n == {1: 7, 2: 2}  # corner 2 came back as new
     assert history.ids[ready].tolist() == [1]

@@ -20,7 +20,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from common.voxel_keys import BITS, OFFSET
+from common.voxel_keys import bucket, pack
 from services.tracker.track import TrackTable
 
 NDArray = npt.NDArray[Any]
@@ -93,17 +93,6 @@ class CornerHistory:
             ids, xyz, std = ids[order], xyz[order], std[order]
         state = _merge(self.ids, self.xy, self.t, self.n, self.missed, self.std, ids, xyz, std, clock, MAX_GAP)
         self.ids, self.xy, self.t, self.n, self.missed, self.now, self.std = state
-
-    def ready(self, min_samples: int) -> NDArray:
-        """Which corners were seen this frame with ``min_samples`` positions or more."""
-        return (self.n >= max(min_samples, 2)) & (self.missed == 0)
-
-    def velocities(self, rows: NDArray) -> tuple[NDArray, NDArray]:
-        """The velocities (m, 2) of the lines through these corners' positions, and the doubt (m,) their
-        range's brings to them."""
-        rows = np.asarray(rows, dtype=np.int64)
-        slope, spread = _fit_lines(self.xy, self.t, self.n, rows)
-        return slope, self.std[rows] * spread
 
 
 @numba.njit(cache=True)
@@ -188,17 +177,10 @@ def corner_velocity(
 
 
 @numba.njit(cache=True)
-def _cell_key(x: float, y: float, z: float, edge: float) -> int:
-    """The packed key (common/voxel_keys.py) of the voxel a world point lies in."""
-    i, j, k = np.int64(np.floor(x / edge)), np.int64(np.floor(y / edge)), np.int64(np.floor(z / edge))
-    return ((i + OFFSET) << (2 * BITS)) | ((j + OFFSET) << BITS) | (k + OFFSET)
-
-
-@numba.njit(cache=True)
-def _probe(table: NDArray, key: int) -> int:
-    """The slot of ``key`` in an open-addressing table of packed keys (-1: free), or the free slot it would take."""
+def _probe(table: NDArray, shift: int, key: int) -> int:
+    """The slot of ``key`` in an open-addressing table of keys (-1: free), or the free slot it would take."""
     mask = table.shape[0] - 1
-    h = np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(40)) & mask
+    h = bucket(key, shift)
     while table[h] != -1 and table[h] != key:
         h = (h + 1) & mask
     return h
@@ -236,16 +218,20 @@ def _piece_velocities(
     instead touched the frame's voxels three times over: this step took a tenth of the tracker's
     time with 50 obstacles.
     """
-    size = 16
-    while size < 2 * now.shape[0]:
-        size *= 2
+    bits = 4
+    while (1 << bits) < 2 * now.shape[0]:
+        bits += 1
+    size, shift = 1 << bits, 64 - bits
     table = np.full(size, -1, np.int64)
     head = np.empty(size, np.int64)  # the first corner in the slot's voxel
     chain = np.full(now.shape[0], -1, np.int64)  # the next corner in the same voxel
     for c in range(now.shape[0]):
         if n[c] >= min_n and missed[c] == 0:
-            key = _cell_key(now[c, 0], now[c, 1], now[c, 2], edge)
-            h = _probe(table, key)
+            key = pack(
+                np.int64(np.floor(now[c, 0] / edge)), np.int64(np.floor(now[c, 1] / edge)),
+                np.int64(np.floor(now[c, 2] / edge)),
+            )  # fmt: skip
+            h = _probe(table, shift, key)
             if table[h] == -1:
                 table[h], head[h] = key, -1
             chain[c], head[h] = head[h], c
@@ -254,8 +240,8 @@ def _piece_velocities(
     for v in range(voxels.shape[0]):
         if owner[v] < 0:
             continue
-        key = ((voxels[v, 0] + OFFSET) << (2 * BITS)) | ((voxels[v, 1] + OFFSET) << BITS) | (voxels[v, 2] + OFFSET)
-        h = _probe(table, key)
+        key = pack(voxels[v, 0], voxels[v, 1], voxels[v, 2])
+        h = _probe(table, shift, key)
         c = head[h] if table[h] == key else -1
         while c >= 0:
             if whose[c] < 0 or owner[v] < whose[c]:

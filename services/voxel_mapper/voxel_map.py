@@ -23,7 +23,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from common.voxel_keys import BITS, OFFSET, unpack
+from common.voxel_keys import OFFSET, bucket, pack, unpack
 from services.voxel_mapper.colour import hue_and_spread, rgb_to_hsl
 
 F64 = npt.NDArray[np.float64]
@@ -31,7 +31,6 @@ I64 = npt.NDArray[np.int64]
 
 EMPTY = -1
 INV255 = 1.0 / 255.0
-GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 
 # Columns of the per-voxel sums.
 COUNT, XYZ, RGB, RGB2, HSL, HSL2 = 0, slice(1, 4), slice(4, 7), slice(7, 10), slice(10, 13), slice(13, 16)
@@ -40,16 +39,6 @@ CHROMA = slice(17, 19)  # with circular hue: chroma vectors (r - (g + b) / 2, sq
 CHROMA_W = 19  # ... and their lengths
 N_STATS = 20
 SQRT3_2 = float(np.sqrt(3.0) / 2.0)
-
-
-@numba.njit(cache=True, inline="always")
-def pack(i: int, j: int, k: int) -> int:
-    return ((i + OFFSET) << (2 * BITS)) | ((j + OFFSET) << BITS) | (k + OFFSET)
-
-
-@numba.njit(cache=True, inline="always")
-def bucket(key: int, shift: int) -> int:
-    return np.int64((np.uint64(key) * GOLDEN) >> np.uint64(shift))
 
 
 @numba.njit(cache=True)
