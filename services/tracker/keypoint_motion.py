@@ -51,7 +51,7 @@ NO_CORNERS = CornerRule()
 
 @dataclass(frozen=True)
 class CornerVelocity:
-    """Per track: the median velocity (n, 2) of the corners on it, its doubt (n,) and their number (n,)."""
+    """Per piece: the median velocity (n, 2) of the corners on it, its doubt (n,) and their number (n,)."""
 
     velocity: NDArray
     sigma: NDArray

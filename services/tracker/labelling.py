@@ -91,7 +91,17 @@ class MotionLabeller:
         upright_k = k if self.upright_sigma_k is None else self.upright_sigma_k
         sigma_k = np.where(upright, upright_k, k)
         moving = label(t.moving, speed, sigma, slide, t.age, self.hysteresis, confirm, sigma_k)
+        if self.corners.samples <= 0:
+            return moving
         return (moving & ~self.held_by_corners(t)) | self.by_corners(t)
+
+    def _corner_speed(self, t: TrackTable) -> tuple[NDArray, NDArray, NDArray]:
+        """The corners' median speed on each track less and plus ``sigma_k`` of their sigmas, and
+        whether enough corners are on it for an opinion."""
+        rule = self.corners
+        speed = np.hypot(t.corner_velocity[:, 0], t.corner_velocity[:, 1])
+        doubt = rule.sigma_k * t.corner_sigma
+        return speed - doubt, speed + doubt, t.corner_count >= rule.min_count
 
     def held_by_corners(self, t: TrackTable) -> NDArray:
         """Which standing tracks the corners on them are sure stand still: none of them turns moving.
@@ -99,11 +109,10 @@ class MotionLabeller:
         A pole's cluster at 15-25 m swings along the line of sight with the smear around it, and its
         filter and faces can read a walker's pace for a few frames; the corners on it stay put.
         """
-        rule = self.corners
-        if rule.samples <= 0 or rule.still_mps <= 0.0:
+        if self.corners.still_mps <= 0.0:
             return np.zeros(len(t), dtype=bool)
-        bound = np.hypot(t.corner_velocity[:, 0], t.corner_velocity[:, 1]) + rule.sigma_k * t.corner_sigma
-        return ~t.moving & (t.corner_count >= rule.min_count) & (bound < rule.still_mps)
+        _, high, sure = self._corner_speed(t)
+        return ~t.moving & sure & (high < self.corners.still_mps)
 
     def by_corners(self, t: TrackTable) -> NDArray:
         """Which tracks the corners on them call moving (keypoint_motion.py).
@@ -113,14 +122,11 @@ class MotionLabeller:
         edge see the background through their window and drift with it, while the filter sees the
         pole stand still. Keeping one moving needs them sure of the lower threshold alone.
         """
-        rule = self.corners
-        if rule.samples <= 0:
-            return np.zeros(len(t), dtype=bool)
-        bound = np.hypot(t.corner_velocity[:, 0], t.corner_velocity[:, 1]) - rule.sigma_k * t.corner_sigma
-        sure = t.corner_count >= rule.min_count
+        low, _, sure = self._corner_speed(t)
         filtered = np.hypot(t.x[:, 3], t.x[:, 4])
-        turn_on = sure & (bound > rule.on_mps) & (filtered > self.hysteresis.on) & (t.age >= self.hysteresis.min_frames)
-        return np.where(t.moving, sure & (bound >= self.hysteresis.off), turn_on)
+        on = self.hysteresis.on
+        turn_on = sure & (low > self.corners.on_mps) & (filtered > on) & (t.age >= self.hysteresis.min_frames)
+        return np.where(t.moving, sure & (low >= self.hysteresis.off), turn_on)
 
     def window_bounds(
         self, t: TrackTable, k: float, upright: NDArray, direction: NDArray | None = None
