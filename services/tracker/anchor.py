@@ -83,18 +83,88 @@ def footprint(clusters: list[Cluster]) -> Footprint:
     A cluster from a recording made before the mapper counted points weighs its voxels alike. One
     pass over the clusters: three list comprehensions cost 60 µs a frame with 50 clusters.
     """
-    voxels, points = [], []
-    for c in clusters:
-        voxels.append(np.asarray(c.voxels).reshape(-1, 3))
-        points.append(np.asarray(c.voxel_points))
-    counts = np.fromiter((len(v) for v in voxels), dtype=np.int64, count=len(voxels))
-    counted = np.fromiter((len(w) for w in points), dtype=np.int64, count=len(points)) == counts
+    voxels = [c.voxels for c in clusters]
+    points = [c.voxel_points for c in clusters]
+    counts = np.array([len(v) for v in voxels], dtype=np.int64)
+    counted = np.array([len(w) for w in points], dtype=np.int64) == counts
     if not counted.all():
         points = [w if ok else np.ones(n) for w, ok, n in zip(points, counted, counts.tolist(), strict=True)]
-    stacked = np.concatenate(voxels).astype(np.int64) if voxels else np.zeros((0, 3), np.int64)
-    weights = np.concatenate(points).astype(np.float64) if points else np.zeros(0)
+    if not voxels:
+        return Footprint(np.zeros((0, 3), np.int64), counts, np.zeros(0), counted)
+    try:
+        stacked = np.concatenate(voxels).astype(np.int64).reshape(-1, 3)
+    except ValueError:  # an empty cluster's voxels as a flat list
+        stacked = np.concatenate([np.asarray(v).reshape(-1, 3) for v in voxels]).astype(np.int64)
+    weights = np.concatenate(points).astype(np.float64)
     # + 1e-3: a voxel kept without points this frame counts a little
+    if counted.all():
+        return Footprint(stacked, counts, weights + 1e-3, counted)
     return Footprint(stacked, counts, np.where(np.repeat(counted, counts), weights + 1e-3, weights), counted)
+
+
+@numba.njit(cache=True)
+def _order(values: NDArray) -> NDArray:
+    """The ascending order of ``values``: counted into two bins a value, then put right within bins.
+
+    Exact, and stable. numba's quicksort took 0.8 µs for a cluster's 84 values where this takes
+    0.5, and the anchors sorted three times a cluster, 150 times a frame with 50 obstacles.
+    """
+    m = values.shape[0]
+    order = np.arange(m)
+    if m < 2:
+        return order
+    lo = hi = values[0]
+    for i in range(1, m):
+        lo, hi = min(lo, values[i]), max(hi, values[i])
+    bins = 2 * m
+    width = (hi - lo) / bins
+    if not width > 0.0:  # all alike (or not finite): any order is sorted
+        return order
+    start = np.zeros(bins + 1, np.int64)
+    key = np.empty(m, np.int64)
+    for i in range(m):
+        key[i] = min(int((values[i] - lo) / width), bins - 1)
+        start[key[i] + 1] += 1
+    for b in range(bins):
+        start[b + 1] += start[b]
+    for i in range(m):
+        order[start[key[i]]] = i
+        start[key[i]] += 1
+    for i in range(1, m):  # insertion: values out of place only within their bin
+        o, j = order[i], i
+        while j > 0 and values[order[j - 1]] > values[o]:
+            order[j] = order[j - 1]
+            j -= 1
+        order[j] = o
+    return order
+
+
+#: a selection keeps the ``k`` + 1 smallest (or largest) values in a buffer up to this ``k``; past it, sorts.
+SELECT_MAX: int = 32
+
+
+@numba.njit(cache=True)
+def _kth(values: NDArray, k: int, buffer: NDArray) -> float:
+    """The ``k``-th smallest of ``values`` (0-based), as ``values[_order(values)[k]]``, without a sort
+    where ``k`` lies near either end: a face's 5 % of a cluster's voxels is its fifth value of 84."""
+    m = values.shape[0]
+    top = m - 1 - k
+    if min(k, top) > SELECT_MAX:
+        return values[_order(values)[k]]
+    low = k <= top
+    keep = (k if low else top) + 1
+    held = 0
+    for i in range(m):
+        v = values[i] if low else -values[i]
+        if held == keep and v >= buffer[held - 1]:
+            continue
+        j = held if held < keep else keep - 1
+        while j > 0 and buffer[j - 1] > v:
+            buffer[j] = buffer[j - 1]
+            j -= 1
+        buffer[j] = v
+        held = min(held + 1, keep)
+    return buffer[keep - 1] if low else -buffer[keep - 1]
 
 
 @numba.njit(cache=True)
@@ -119,7 +189,7 @@ def _pick(
     replaced (the same figures on every replay, docs/results/tracking.md, "Session 30").
     """
     m = values.shape[0]
-    order = np.argsort(values)
+    order = _order(values)
     for j, share in enumerate(by_voxels):
         # rounded at the frame-wide position, as the all-numpy form did, so that it rounds alike
         k = int(np.ceil(start + share * m)) - 1 - start
@@ -203,7 +273,7 @@ def _place(
     cut = np.zeros(n, dtype=np.bool_)
     sizes = np.full((n, 2), np.nan)  # across the line of sight and, if narrow, the core's depth along it
     faces, median, tails, none = np.array([q, 1.0 - q]), np.array([0.5]), np.array([0.05, 0.95]), np.zeros(0)
-    xs, ys, spread = np.empty(4), np.empty(2), np.empty(2)
+    xs, ys, spread, buffer = np.empty(4), np.empty(2), np.empty(2), np.empty(SELECT_MAX + 1)
     r, o = pose[0:3, 0:3], pose[0:3, 3]
     run_x, run_across = 0.0, 0.0
     start = 0
@@ -231,7 +301,9 @@ def _place(
             across[i] = ray_x * y[i] - ray_y * x[i]
         w = weights[start : start + m]
         run_x = _pick(x, w, start, run_x, faces, median, xs, trim)
-        _pick(y, w, start, 0.0, faces, none, ys, 0.0)
+        for j in range(2):  # rounded at the frame-wide position, as ``_pick`` does
+            k = int(np.ceil(start + faces[j] * m)) - 1 - start
+            ys[j] = _kth(y, min(max(k, 0), m - 1), buffer)
         run_across = _pick(across, w, start, run_across, none, tails, spread, 0.0)
         start += m
         near_x, far_x, range_x, y_lo, y_hi = xs[0], xs[1], xs[2], ys[0], ys[1]

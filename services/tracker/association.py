@@ -1,4 +1,4 @@
-"""Greedy association of the paper's Algorithm IV-C.1 over a weighted, vectorised distance.
+"""Greedy association of the paper's Algorithm IV-C.1 over a weighted distance.
 
 The distance between track ``t`` and cluster ``c`` is the linear combination the paper names:
 
@@ -20,9 +20,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial.distance import cdist
 
 NDArray = npt.NDArray[Any]
 
@@ -45,9 +45,27 @@ def color_distance(rgb_t: NDArray, hsl_t: NDArray, rgb_c: NDArray, hsl_c: NDArra
     The hue of a grey is noise (asphalt, concrete and glass flip between any two hues from frame to
     frame), so the hue difference counts in proportion to the lesser of the two saturations.
     """
-    d_hue = np.abs(hsl_t[:, None, 0] - hsl_c[None, :, 0])
-    d_hue = np.minimum(d_hue, 1.0 - d_hue) * np.minimum(hsl_t[:, None, 1], hsl_c[None, :, 1])
-    return cdist(rgb_t, rgb_c) + d_hue + cdist(hsl_t[:, 1:3], hsl_c[:, 1:3], "cityblock")
+    out = np.empty((len(rgb_t), len(rgb_c)))
+    _color(_rows(rgb_t), _rows(hsl_t), _rows(rgb_c), _rows(hsl_c), out)
+    return out
+
+
+@numba.njit(cache=True)
+def _color(rgb_t: NDArray, hsl_t: NDArray, rgb_c: NDArray, hsl_c: NDArray, out: NDArray) -> None:
+    for i in range(rgb_t.shape[0]):
+        for j in range(rgb_c.shape[0]):
+            d_hue = abs(hsl_t[i, 0] - hsl_c[j, 0])
+            d_hue = min(d_hue, 1.0 - d_hue) * min(hsl_t[i, 1], hsl_c[j, 1])
+            rgb = 0.0
+            for a in range(3):
+                rgb += (rgb_t[i, a] - rgb_c[j, a]) ** 2
+            out[i, j] = np.sqrt(rgb) + d_hue + (abs(hsl_t[i, 1] - hsl_c[j, 1]) + abs(hsl_t[i, 2] - hsl_c[j, 2]))
+
+
+def _rows(a: NDArray) -> NDArray:
+    """``a`` as C-ordered float64 rows: a message decoded off the bus holds read-only float32 arrays,
+    which numba would compile for again."""
+    return np.ascontiguousarray(a, dtype=np.float64)
 
 
 def position_variance(
@@ -61,8 +79,19 @@ def position_variance(
     """
     p_t = np.trace(position_cov_t, axis1=1, axis2=2) / 3.0
     r = np.trace(r_c, axis1=1, axis2=2) / 3.0
-    extent_change = cdist(extent_t, extent_c, "sqeuclidean") / 3.0
-    return p_t[:, None] + noise_scale_t[:, None] * (r[None, :] + extent_change)
+    out = np.empty((len(p_t), len(r)))
+    _variance(_rows(p_t), _rows(noise_scale_t), _rows(extent_t), _rows(r), _rows(extent_c), out)
+    return out
+
+
+@numba.njit(cache=True)
+def _variance(p_t: NDArray, scale_t: NDArray, extent_t: NDArray, r_c: NDArray, extent_c: NDArray, out: NDArray) -> None:
+    for i in range(p_t.shape[0]):
+        for j in range(r_c.shape[0]):
+            change = 0.0
+            for a in range(3):
+                change += (extent_t[i, a] - extent_c[j, a]) ** 2
+            out[i, j] = p_t[i] + scale_t[i] * (r_c[j] + change / 3.0)
 
 
 def distance_matrix(
@@ -79,21 +108,44 @@ def distance_matrix(
     extent_c: NDArray,
     density_c: NDArray,
 ) -> NDArray:
-    """(tracks x clusters) weighted distances."""
+    """(tracks x clusters) weighted distances.
+
+    Compiled, pair by pair: over numpy's (tracks x clusters) arrays, a dozen of them a frame, this
+    step and the variances before it took a twentieth of the tracker's time with 50 obstacles.
+    """
+    out = np.zeros((len(position_t), len(position_c)))
     if len(position_t) == 0 or len(position_c) == 0:
-        return np.zeros((len(position_t), len(position_c)))
-    total = np.abs(extent_t).sum(axis=1)[:, None] + np.abs(extent_c).sum(axis=1)[None, :]
-    d_size = cdist(extent_t, extent_c, "cityblock") / np.maximum(total, 1e-9)
-    d_density = np.abs(density_t[:, None] - density_c[None, :])
-    d_position = cdist(position_t, position_c) / np.sqrt(position_var)
-    total = (
-        weights.position * d_position
-        + weights.color * color_distance(rgb_t, hsl_t, rgb_c, hsl_c)
-        + weights.size * d_size
-        + weights.density * d_density
-    )
-    total[d_position > weights.position_gate] = np.inf
-    return total
+        return out
+    _color(_rows(rgb_t), _rows(hsl_t), _rows(rgb_c), _rows(hsl_c), out)
+    w = np.array([weights.position, weights.color, weights.size, weights.density, weights.position_gate])
+    _distances(
+        _rows(position_var), _rows(position_t), _rows(extent_t), _rows(density_t),
+        _rows(position_c), _rows(extent_c), _rows(density_c), w, out,
+    )  # fmt: skip
+    return out
+
+
+@numba.njit(cache=True)
+def _distances(
+    position_var: NDArray, position_t: NDArray, extent_t: NDArray, density_t: NDArray,
+    position_c: NDArray, extent_c: NDArray, density_c: NDArray, w: NDArray, out: NDArray,
+) -> None:  # fmt: skip
+    """``out`` holds the colour distances; the weighted sum replaces them."""
+    for i in range(position_t.shape[0]):
+        size_t = abs(extent_t[i, 0]) + abs(extent_t[i, 1]) + abs(extent_t[i, 2])
+        for j in range(position_c.shape[0]):
+            size = max(size_t + (abs(extent_c[j, 0]) + abs(extent_c[j, 1]) + abs(extent_c[j, 2])), 1e-9)
+            d_size, d_position = 0.0, 0.0
+            for a in range(3):
+                d_size += abs(extent_t[i, a] - extent_c[j, a])
+                d_position += (position_t[i, a] - position_c[j, a]) ** 2
+            d_position = np.sqrt(d_position) / np.sqrt(position_var[i, j])
+            if d_position > w[4]:
+                out[i, j] = np.inf
+                continue
+            out[i, j] = (
+                w[0] * d_position + w[1] * out[i, j] + w[2] * (d_size / size) + w[3] * abs(density_t[i] - density_c[j])
+            )
 
 
 def greedy_pairs(distance: NDArray, gate: float) -> tuple[NDArray, NDArray]:
@@ -106,20 +158,25 @@ def greedy_pairs(distance: NDArray, gate: float) -> tuple[NDArray, NDArray]:
     n_t, n_c = distance.shape
     if n_t == 0 or n_c == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    flat = np.flatnonzero(distance < gate)
-    order = flat[np.argsort(distance.ravel()[flat], kind="stable")]
-    rows, cols = np.divmod(order, n_c)
-    row_used = [False] * n_t  # lists: a numpy element access per pair costs more than the loop
-    col_used = [False] * n_c
-    out_t: list[int] = []
-    out_c: list[int] = []
-    limit = min(n_t, n_c)
-    for r, c in zip(rows.tolist(), cols.tolist(), strict=True):
+    return _greedy(np.ascontiguousarray(distance, dtype=np.float64), float(gate))
+
+
+@numba.njit(cache=True)
+def _greedy(distance: NDArray, gate: float) -> tuple[NDArray, NDArray]:
+    n_t, n_c = distance.shape
+    flat = distance.ravel()
+    under = np.flatnonzero(flat < gate)
+    order = under[np.argsort(flat[under], kind="mergesort")]  # stable: ties go to the lower row, then column
+    row_used, col_used = np.zeros(n_t, np.bool_), np.zeros(n_c, np.bool_)
+    out_t, out_c = np.empty(min(n_t, n_c), np.int64), np.empty(min(n_t, n_c), np.int64)
+    k = 0
+    for f in order:
+        r, c = f // n_c, f % n_c
         if row_used[r] or col_used[c]:
             continue
         row_used[r] = col_used[c] = True
-        out_t.append(r)
-        out_c.append(c)
-        if len(out_t) == limit:
+        out_t[k], out_c[k] = r, c
+        k += 1
+        if k == out_t.shape[0]:
             break
-    return np.asarray(out_t, dtype=np.int64), np.asarray(out_c, dtype=np.int64)
+    return out_t[:k], out_c[:k]

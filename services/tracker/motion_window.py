@@ -148,16 +148,52 @@ def line_velocity(
     """(n, 2) velocity of the least-squares line through each track's faces, and (n,) its standard error.
 
     The standard error is nan where fewer than ``min_faces`` faces are held; the scatter is pooled
-    over both axes and never taken below ``floor_std`` (m), as in ``speed_bounds``.
+    over both axes and never taken below ``floor_std`` (m), as in ``speed_bounds``. Compiled, track
+    by track, as ``speed_bounds`` is: over numpy's batched arrays it cost 4 % of the tracker's time.
     """
-    size = points.shape[1]
-    held = (np.arange(size)[None, :] >= size - count[:, None]).astype(np.float64)
-    m = np.maximum(held.sum(axis=1), 1.0)
-    dt = (times - (held * times).sum(axis=1)[:, None] / m[:, None]) * held
-    sxx = np.maximum((dt * dt).sum(axis=1), 1e-12)
-    centre = (held[:, :, None] * points).sum(axis=1) / m[:, None]
-    slope = (dt[:, :, None] * (points - centre[:, None, :])).sum(axis=1) / sxx[:, None]
-    residual = (points - centre[:, None, :] - dt[:, :, None] * slope[:, None, :]) * held[:, :, None]
-    dof = np.maximum(m - 2.0, 1.0)
-    scatter = np.maximum((residual**2).sum(axis=(1, 2)) / (2.0 * dof), floor_std**2)
-    return slope, np.where(count >= min_faces, np.sqrt(scatter / sxx), np.nan)
+    return _line(
+        np.ascontiguousarray(points, dtype=np.float64),
+        np.ascontiguousarray(times, dtype=np.float64),
+        np.ascontiguousarray(count, dtype=np.int64),
+        int(min_faces),
+        float(floor_std),
+    )
+
+
+@numba.njit(cache=True)
+def _line(points: NDArray, times: NDArray, count: NDArray, min_faces: int, floor_std: float) -> tuple[NDArray, NDArray]:
+    n, size, axes = points.shape
+    slope, se = np.zeros((n, axes)), np.full(n, np.nan)
+    centre = np.empty(axes)
+    for i in range(n):
+        m = min(count[i], size)
+        if m <= 0:
+            continue
+        first = size - m  # the newest ``m`` entries
+        t_mean = 0.0
+        for s in range(first, size):
+            t_mean += times[i, s]
+        t_mean /= m
+        sxx = 0.0
+        for s in range(first, size):
+            sxx += (times[i, s] - t_mean) ** 2
+        sxx = max(sxx, 1e-12)
+        for a in range(axes):
+            centre[a] = 0.0
+            for s in range(first, size):
+                centre[a] += points[i, s, a]
+            centre[a] /= m
+            acc = 0.0
+            for s in range(first, size):
+                acc += (times[i, s] - t_mean) * (points[i, s, a] - centre[a])
+            slope[i, a] = acc / sxx
+        if count[i] < min_faces:
+            continue
+        rss = 0.0
+        for s in range(first, size):
+            dt = times[i, s] - t_mean
+            for a in range(axes):
+                rss += (points[i, s, a] - centre[a] - dt * slope[i, a]) ** 2
+        scatter = max(rss / (axes * max(m - 2.0, 1.0)), floor_std**2)
+        se[i] = np.sqrt(scatter / sxx)
+    return slope, se
