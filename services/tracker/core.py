@@ -389,7 +389,7 @@ class Tracker:
         # a part's faces are where the parting drew its edges: the window starts again after one
         motion_window.restart(t.window_n, rows[jump | reshaped | refound | (t.parted[rows] & ~t.moving[rows])])
         motion_window.push(t.window, t.window_t, t.window_n, rows, obs.anchor, self._clock)
-        motion_window.push(t.window_far, t.window_t.copy(), t.window_n.copy(), rows, obs.anchor + obs.far, self._clock)
+        motion_window.push_points(t.window_far, rows, obs.anchor + obs.far)
         t.nis[rows] += self.noise_adaptation * (np.where(jump, t.nis[rows], nis) - t.nis[rows])
         t.x[rows], t.p[rows] = x, p
         # a cluster suddenly wider than the object has been (its smoothed extent) has taken in a

@@ -110,7 +110,12 @@ def across_sight(
         return np.abs(box[:, 0] * normal[:, 0]) + np.abs(box[:, 1] * normal[:, 1])
 
     now, slow = width(extent), width(extent_slow)
-    var = np.einsum("ni,nij,nj->n", normal, velocity_cov, normal)
+    nx, ny = normal[:, 0], normal[:, 1]  # n^T C n written out, as in speed_and_sigma
+    var = (
+        nx * nx * velocity_cov[:, 0, 0]
+        + nx * ny * (velocity_cov[:, 0, 1] + velocity_cov[:, 1, 0])
+        + ny * ny * velocity_cov[:, 1, 1]
+    )
     return Across(
         normal=normal,
         width=now,

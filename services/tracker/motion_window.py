@@ -42,11 +42,27 @@ def push(points: NDArray, times: NDArray, count: NDArray, rows: NDArray, new_poi
     """
     if len(rows) == 0:
         return
-    points[rows, :-1] = points[rows, 1:]
+    push_points(points, rows, new_points)
     times[rows, :-1] = times[rows, 1:]
-    points[rows, -1] = new_points[:, 0:2]
     times[rows, -1] = now
     count[rows] = np.minimum(count[rows] + 1, points.shape[1])
+
+
+def push_points(points: NDArray, rows: NDArray, new_points: NDArray) -> None:
+    """``push``'s positions alone: for a second window (the far ends) sharing the first's times and counts."""
+    if len(rows) == 0:
+        return
+    _shift_in(points, np.asarray(rows, dtype=np.int64), np.ascontiguousarray(new_points, dtype=np.float64))
+
+
+@numba.njit(cache=True)
+def _shift_in(points: NDArray, rows: NDArray, new_points: NDArray) -> None:
+    size = points.shape[1]
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        for s in range(size - 1):
+            points[r, s, 0], points[r, s, 1] = points[r, s + 1, 0], points[r, s + 1, 1]
+        points[r, size - 1, 0], points[r, size - 1, 1] = new_points[i, 0], new_points[i, 1]
 
 
 def restart(count: NDArray, rows: NDArray) -> None:
