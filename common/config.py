@@ -248,6 +248,8 @@ class TrackerConfig:
     corner_on_mps: float = 1.0  # ... and their median speed, less its doubt, above this turns it moving
     corner_sigma_k: float = 2.0  # ... that doubt taken this many times (1.5 measured: KITTI 0001 1 false frame)
     corner_still_mps: float = 1.0  # ... below this, plus its doubt, keeps a track standing (0.8, 1.2 alike; 0: off)
+    corner_update_gate: float = 9.0  # their velocity corrects the filter's within this 2-D NIS (4 measured); 0: off
+    corner_update_floor_mps: float = 0.2  # ... as a measurement at least this doubtful (m/s)
 
 
 @dataclass

@@ -271,6 +271,30 @@ def test_batched_filter_matches_filterpy() -> None:
     assert np.allclose(p, np.stack([kf.P for kf in filters]), atol=1e-12)
 
 
+def test_velocity_correction_matches_filterpy_and_leaves_out_what_it_gates() -> None:
+    rng = np.random.default_rng(4)
+    n = 5
+    a = rng.normal(size=(n, 6, 6))
+    p = a @ np.swapaxes(a, 1, 2) + np.eye(6)[None]  # symmetric positive definite
+    x = rng.normal(size=(n, 6))
+    v = x[:, 3:5] + rng.normal(scale=0.5, size=(n, 2))
+    v[3] = x[3, 3:5] + 100.0  # far outside what the filter expects
+    std = np.array([0.2, 0.3, 0.5, 0.2, 1.0])
+    x_new, p_new = x.copy(), p.copy()
+    done = kalman.correct_velocity(x_new, p_new, np.arange(n), v, std, gate=9.0)
+    assert done.tolist() == [True, True, True, False, True]
+    for i in range(n):
+        kf = KalmanFilter(dim_x=6, dim_z=2)
+        kf.x, kf.P = x[i].reshape(6, 1).copy(), p[i].copy()
+        kf.H = np.zeros((2, 6))
+        kf.H[0, 3] = kf.H[1, 4] = 1.0
+        kf.R = np.eye(2) * std[i] ** 2
+        if done[i]:
+            kf.update(v[i])
+        np.testing.assert_allclose(x_new[i], kf.x.ravel(), atol=1e-10)
+        np.testing.assert_allclose(p_new[i], kf.P, atol=1e-10)
+
+
 def test_constant_velocity_target_speed_converges() -> None:
     rng = np.random.default_rng(1)
     tracker = new_tracker()

@@ -147,10 +147,10 @@ def test_a_post_whose_cluster_swings_as_much_is_not(seed: int) -> None:
     assert not any(_noisy_walk(True, 0.0, seed))
 
 
-def _sliding_cluster_over_standing_corners(still_mps: float, frames: int = 16) -> list[bool]:
+def _sliding_cluster_over_standing_corners(still_mps: float, update_gate: float = 0.0, frames: int = 16) -> list[bool]:
     """A cluster that moves away at 1.6 m/s (a pole's smear swinging out, at its worst) while the
     eight corners in it stand still. Whether any obstacle is labelled moving, frame by frame."""
-    tracker = new_tracker(corner_samples=6, corner_still_mps=still_mps)
+    tracker = new_tracker(corner_samples=6, corner_still_mps=still_mps, corner_update_gate=update_gate)
     corners = np.column_stack([np.full(8, 23.1), np.linspace(-0.2, 0.2, 8), np.linspace(0.2, 1.6, 8)])
     labels = []
     for k in range(frames):
@@ -168,6 +168,11 @@ def _sliding_cluster_over_standing_corners(still_mps: float, frames: int = 16) -
 def test_corners_sure_a_track_stands_keep_it_from_turning_moving() -> None:
     assert any(_sliding_cluster_over_standing_corners(still_mps=0.0))  # the filter alone calls it moving
     assert not any(_sliding_cluster_over_standing_corners(still_mps=1.0))
+
+
+def test_standing_corners_correcting_the_filter_keep_it_standing_too() -> None:
+    # the filter, corrected by the corners' velocity, reads the sliding cluster as standing
+    assert not any(_sliding_cluster_over_standing_corners(still_mps=0.0, update_gate=9.0))
 
 
 def test_a_cluster_without_corners_is_labelled_as_before() -> None:

@@ -212,7 +212,13 @@ class Tracker:
             velocity_faces=t.velocity_faces,
             narrow_by_points=t.narrow_by_points,
             corners=CornerRule(
-                t.corner_samples, t.corner_min_count, t.corner_on_mps, t.corner_sigma_k, t.corner_still_mps
+                t.corner_samples,
+                t.corner_min_count,
+                t.corner_on_mps,
+                t.corner_sigma_k,
+                t.corner_still_mps,
+                t.corner_update_gate,
+                t.corner_update_floor_mps,
             ),
         )
 
@@ -252,6 +258,7 @@ class Tracker:
                 self.tracks.ids, rows, cols, obs, pieces, self.tracks.moving, clusters.voxel_edge
             )
             self.counters["slid"] += restart_from_rest(self.tracks, slid, self.velocity_var)
+            self._corner_update()
         self._advance_queues(rows, elapsed, piece_of, sight)
         fresh = np.ones(len(obs), dtype=bool)
         fresh[cols] = False
@@ -428,6 +435,17 @@ class Tracker:
         rule = self.corner_rule
         c = corner_velocity(self.corners, stacked.voxels, stacked.counts, slot, len(rows), edge, rule.samples)
         t.corner_velocity[rows], t.corner_sigma[rows], t.corner_count[rows] = c.velocity, c.sigma, c.count
+
+    def _corner_update(self) -> None:
+        """The filter corrected with the velocity of the corners on each track, where it holds enough
+        of them (``CornerRule.min_count``) and that velocity is within ``CornerRule.update_gate`` of
+        what the filter expects (keypoint_motion.py)."""
+        rule, t = self.corner_rule, self.tracks
+        if rule.update_gate <= 0.0 or rule.samples <= 0:
+            return
+        rows = np.flatnonzero((t.corner_count >= max(rule.min_count, 1)) & np.isfinite(t.corner_sigma))
+        std = np.maximum(t.corner_sigma[rows], rule.update_floor_mps)
+        kalman.correct_velocity(t.x, t.p, rows, t.corner_velocity[rows], std, rule.update_gate)
 
     def _swallowed(self, rows: NDArray, obs: Observations) -> NDArray:
         """Which tracked rows' clusters outgrow their smoothed extent by over ``merge_growth_m`` (x or y)."""

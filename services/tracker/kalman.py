@@ -15,6 +15,8 @@ import numpy as np
 import numpy.typing as npt
 
 F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+BOOL = npt.NDArray[np.bool_]
 
 #: the measurement picks the position out of the state.
 H: F64 = np.hstack([np.eye(3), np.zeros((3, 3))])
@@ -186,3 +188,53 @@ def _update(x: F64, p: F64, z: F64, r: F64) -> tuple[F64, F64]:
                     acc += kr[i, m] * k[j, m]
                 p_new[t, i, j] = acc
     return x_new, p_new
+
+
+def correct_velocity(x: F64, p: F64, rows: I64, v: F64, std: F64, gate: float) -> BOOL:
+    """Correct the states ``rows`` in place with horizontal velocity measurements ``v`` (m, 2) of
+    standard deviation ``std`` (m,; both axes alike); which were corrected.
+
+    A measurement whose squared innovation over its covariance (2 dimensions) exceeds ``gate`` is
+    left out: it measures something else than the track follows. Joseph form, as ``update``.
+    """
+    done = np.zeros(len(rows), dtype=np.bool_)
+    if len(rows):
+        _velocity(x, p, np.asarray(rows, dtype=np.int64), np.ascontiguousarray(v, dtype=np.float64),
+                  np.ascontiguousarray(std, dtype=np.float64), float(gate), done)  # fmt: skip
+    return done
+
+
+@numba.njit(cache=True)
+def _velocity(x: F64, p: F64, rows: I64, v: F64, std: F64, gate: float, done: BOOL) -> None:
+    k = np.empty((6, 2))
+    i_kh = np.empty((6, 6))
+    a = np.empty((6, 6))
+    for i in range(rows.shape[0]):
+        t, r = rows[i], std[i] * std[i]
+        s00, s01, s10, s11 = p[t, 3, 3] + r, p[t, 3, 4], p[t, 4, 3], p[t, 4, 4] + r
+        det = s00 * s11 - s01 * s10
+        i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
+        y0, y1 = v[i, 0] - x[t, 3], v[i, 1] - x[t, 4]
+        if not y0 * (i00 * y0 + i01 * y1) + y1 * (i10 * y0 + i11 * y1) <= gate:
+            continue
+        done[i] = True
+        for m in range(6):  # K = P H^T S^-1
+            k[m, 0] = p[t, m, 3] * i00 + p[t, m, 4] * i10
+            k[m, 1] = p[t, m, 3] * i01 + p[t, m, 4] * i11
+        for m in range(6):
+            x[t, m] += k[m, 0] * y0 + k[m, 1] * y1
+        for m in range(6):  # I - K H
+            for j in range(6):
+                i_kh[m, j] = (1.0 if m == j else 0.0) - (k[m, 0] if j == 3 else (k[m, 1] if j == 4 else 0.0))
+        for m in range(6):  # (I - K H) P
+            for j in range(6):
+                acc = 0.0
+                for q in range(6):
+                    acc += i_kh[m, q] * p[t, q, j]
+                a[m, j] = acc
+        for m in range(6):  # (I - K H) P (I - K H)^T + K R K^T
+            for j in range(6):
+                acc = r * (k[m, 0] * k[j, 0] + k[m, 1] * k[j, 1])
+                for q in range(6):
+                    acc += a[m, q] * i_kh[j, q]
+                p[t, m, j] = acc

@@ -44,6 +44,8 @@ class CornerRule:
     on_mps: float = 0.0  # the speed they must be sure of to turn it moving
     sigma_k: float = 0.0  # ... sure by this many of their sigmas
     still_mps: float = 0.0  # sure (as above) that it is slower than this, they keep it from turning moving; 0: off
+    update_gate: float = 0.0  # their velocity corrects the filter's within this squared innovation (2-D); 0: off
+    update_floor_mps: float = 0.0  # ... its doubt never taken below this
 
 
 NO_CORNERS = CornerRule()
