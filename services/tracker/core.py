@@ -46,7 +46,7 @@ from services.tracker.clock import FrameClock
 from services.tracker.faces import turn_ends, turn_sides
 from services.tracker.fragments import APART_BY_BOX, Sight, Standing, claims, gather, stand_apart
 from services.tracker.jumps import Jumps
-from services.tracker.keypoint_motion import NO_CORNERS, CornerHistory, CornerRule, corner_velocity
+from services.tracker.keypoint_motion import NO_CORNERS, CornerHistory, CornerRule, correct_by_corners, track_corners
 from services.tracker.labelling import MotionLabeller
 from services.tracker.left_behind import LeftBehind, restart_from_rest
 from services.tracker.measurement import cut_covariance, stereo_covariance, view_cut_covariance, visibility_covariance
@@ -252,13 +252,13 @@ class Tracker:
         if trusted:
             self._correct(rows, obs.take(cols), r[cols])
         piece_of = {int(i): pieces[int(obs.index[j])] for i, j in zip(rows, cols, strict=True)}
-        self._corner_velocity(rows, cols, stacked, clusters.voxel_edge)
+        track_corners(self.tracks, self.corners, self.corner_rule, rows, cols, stacked, clusters.voxel_edge)
         if trusted:
             slid = self.left_behind.slid(
                 self.tracks.ids, rows, cols, obs, pieces, self.tracks.moving, clusters.voxel_edge
             )
             self.counters["slid"] += restart_from_rest(self.tracks, slid, self.velocity_var)
-            self._corner_update()
+            correct_by_corners(self.tracks, self.corner_rule)
         self._advance_queues(rows, elapsed, piece_of, sight)
         fresh = np.ones(len(obs), dtype=bool)
         fresh[cols] = False
@@ -422,30 +422,6 @@ class Tracker:
             np.isnan(slow), now, np.where(np.isnan(now), slow, slow + SLIDE_SMOOTHING * (now - slow))
         )
         t.density[rows] += a * (obs.density - t.density[rows])
-
-    def _corner_velocity(self, rows: NDArray, cols: NDArray, stacked: Footprint, edge: float) -> None:
-        """The velocity of the corners on each track's cluster (observation ``cols``) this frame; none
-        on an unseen track."""
-        t = self.tracks
-        t.corner_count[:] = 0
-        if self.corner_rule.samples <= 0 or len(rows) == 0:
-            return
-        slot = np.full(len(stacked.counts), -1, dtype=np.int64)
-        slot[cols] = np.arange(len(cols))
-        rule = self.corner_rule
-        c = corner_velocity(self.corners, stacked.voxels, stacked.counts, slot, len(rows), edge, rule.samples)
-        t.corner_velocity[rows], t.corner_sigma[rows], t.corner_count[rows] = c.velocity, c.sigma, c.count
-
-    def _corner_update(self) -> None:
-        """The filter corrected with the velocity of the corners on each track, where it holds enough
-        of them (``CornerRule.min_count``) and that velocity is within ``CornerRule.update_gate`` of
-        what the filter expects (keypoint_motion.py)."""
-        rule, t = self.corner_rule, self.tracks
-        if rule.update_gate <= 0.0 or rule.samples <= 0:
-            return
-        rows = np.flatnonzero((t.corner_count >= max(rule.min_count, 1)) & np.isfinite(t.corner_sigma))
-        std = np.maximum(t.corner_sigma[rows], rule.update_floor_mps)
-        kalman.correct_velocity(t.x, t.p, rows, t.corner_velocity[rows], std, rule.update_gate)
 
     def _swallowed(self, rows: NDArray, obs: Observations) -> NDArray:
         """Which tracked rows' clusters outgrow their smoothed extent by over ``merge_growth_m`` (x or y)."""

@@ -144,6 +144,18 @@ def _innovation(x: F64, p: F64, z: F64, r: F64) -> F64:
 
 
 @numba.njit(cache=True)
+def _product(a: F64, b: F64, out: F64) -> None:
+    """``out = a @ b`` for square matrices, written out: numba's ``@`` allocates a result per call."""
+    n = a.shape[0]
+    for i in range(n):
+        for j in range(n):
+            acc = 0.0
+            for m in range(n):
+                acc += a[i, m] * b[m, j]
+            out[i, j] = acc
+
+
+@numba.njit(cache=True)
 def _update(x: F64, p: F64, z: F64, r: F64) -> tuple[F64, F64]:
     n = x.shape[0]
     x_new, p_new = np.empty_like(x), np.empty_like(p)
@@ -167,12 +179,7 @@ def _update(x: F64, p: F64, z: F64, r: F64) -> tuple[F64, F64]:
         for i in range(6):  # I - K H
             for j in range(6):
                 i_kh[i, j] = (1.0 if i == j else 0.0) - (k[i, j] if j < 3 else 0.0)
-        for i in range(6):  # (I - K H) P
-            for j in range(6):
-                acc = 0.0
-                for m in range(6):
-                    acc += i_kh[i, m] * p[t, m, j]
-                a[i, j] = acc
+        _product(i_kh, p[t], a)  # (I - K H) P
         for i in range(6):  # K R
             for j in range(3):
                 acc = 0.0
@@ -226,12 +233,7 @@ def _velocity(x: F64, p: F64, rows: I64, v: F64, std: F64, gate: float, done: BO
         for m in range(6):  # I - K H
             for j in range(6):
                 i_kh[m, j] = (1.0 if m == j else 0.0) - (k[m, 0] if j == 3 else (k[m, 1] if j == 4 else 0.0))
-        for m in range(6):  # (I - K H) P
-            for j in range(6):
-                acc = 0.0
-                for q in range(6):
-                    acc += i_kh[m, q] * p[t, q, j]
-                a[m, j] = acc
+        _product(i_kh, p[t], a)  # (I - K H) P
         for m in range(6):  # (I - K H) P (I - K H)^T + K R K^T
             for j in range(6):
                 acc = r * (k[m, 0] * k[j, 0] + k[m, 1] * k[j, 1])

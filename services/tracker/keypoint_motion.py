@@ -21,6 +21,8 @@ import numpy as np
 import numpy.typing as npt
 
 from common.voxel_keys import bucket, pack
+from services.tracker import kalman
+from services.tracker.anchor import Footprint
 from services.tracker.track import TrackTable
 
 NDArray = npt.NDArray[Any]
@@ -276,6 +278,44 @@ def _piece_velocities(
         spread[p] = _median(off[a:b], scratch)
         stereo[p] = _median(doubt[a:b], scratch)
     return velocity, spread, stereo, count
+
+
+def track_corners(
+    t: TrackTable,
+    history: CornerHistory,
+    rule: CornerRule,
+    rows: NDArray,
+    cols: NDArray,
+    stacked: Footprint,
+    edge: float,
+) -> None:
+    """Each track's corners this frame, from the cluster it was paired with (track ``rows``, observation
+    ``cols`` of ``stacked``): their median velocity, its doubt and their number; none on an unseen track."""
+    t.corner_count[:] = 0
+    if rule.samples <= 0 or len(rows) == 0:
+        return
+    slot = np.full(len(stacked.counts), -1, dtype=np.int64)
+    slot[cols] = np.arange(len(cols))
+    c = corner_velocity(history, stacked.voxels, stacked.counts, slot, len(rows), edge, rule.samples)
+    t.corner_velocity[rows], t.corner_sigma[rows], t.corner_count[rows] = c.velocity, c.sigma, c.count
+
+
+def correct_by_corners(t: TrackTable, rule: CornerRule) -> None:
+    """The filter corrected with the median velocity of the corners on each track, where it holds
+    ``rule.min_count`` of them or more, as a measurement as doubtful as they are (never below
+    ``rule.update_floor_mps``), unless it lies beyond ``rule.update_gate`` of what the filter expects.
+
+    Until session 42 the corners only labelled a track and were blended into what it reports; a
+    track restarted from rest, or one whose cluster slid, read its speed from its faces alone for
+    frames while five corners on it said how it moved. The gate leaves out corners that see the
+    background drift past a pole's edges, and a neighbour's that outvote a track's own
+    (docs/results/tracking.md, "Session 42").
+    """
+    if rule.update_gate <= 0.0 or rule.samples <= 0:
+        return
+    rows = np.flatnonzero((t.corner_count >= max(rule.min_count, 1)) & np.isfinite(t.corner_sigma))
+    std = np.maximum(t.corner_sigma[rows], rule.update_floor_mps)
+    kalman.correct_velocity(t.x, t.p, rows, t.corner_velocity[rows], std, rule.update_gate)
 
 
 def blend_corners(t: TrackTable, rule: CornerRule, velocity: NDArray, velocity_cov: NDArray) -> None:

@@ -110,6 +110,32 @@ def speed_bounds(
 
 
 @numba.njit(cache=True)
+def _fit(points: NDArray, times: NDArray, m: int, p_mean: NDArray, slope: NDArray) -> tuple[float, float]:
+    """The least-squares line through one track's newest ``m`` faces: their mean position and slope
+    into ``p_mean`` and ``slope``; their mean time and the sum of squared time offsets returned."""
+    size, axes = points.shape[0], points.shape[1]
+    first = size - m
+    t_mean = 0.0
+    for s in range(first, size):
+        t_mean += times[s]
+    t_mean /= m
+    sxx = 0.0
+    for s in range(first, size):
+        sxx += (times[s] - t_mean) ** 2
+    sxx = max(sxx, 1e-12)
+    for a in range(axes):
+        p_mean[a] = 0.0
+        for s in range(first, size):
+            p_mean[a] += points[s, a]
+        p_mean[a] /= m
+        acc = 0.0
+        for s in range(first, size):
+            acc += (times[s] - t_mean) * (points[s, a] - p_mean[a])
+        slope[a] = acc / sxx
+    return t_mean, sxx
+
+
+@numba.njit(cache=True)
 def _bounds(
     points: NDArray, times: NDArray, count: NDArray, floor_std: float, k: float, direction: NDArray, along: bool
 ) -> tuple[NDArray, NDArray]:
@@ -121,23 +147,7 @@ def _bounds(
         if m < MIN_POINTS:
             continue
         first = size - m  # the newest ``m`` entries
-        t_mean = 0.0
-        for s in range(first, size):
-            t_mean += times[i, s]
-        t_mean /= m
-        sxx = 0.0
-        for s in range(first, size):
-            sxx += (times[i, s] - t_mean) ** 2
-        sxx = max(sxx, 1e-12)
-        for a in range(axes):
-            p_mean[a] = 0.0
-            for s in range(first, size):
-                p_mean[a] += points[i, s, a]
-            p_mean[a] /= m
-            acc = 0.0
-            for s in range(first, size):
-                acc += (times[i, s] - t_mean) * (points[i, s, a] - p_mean[a])
-            slope[a] = acc / sxx
+        t_mean, sxx = _fit(points[i], times[i], m, p_mean, slope)
         rss, rss_along, speed, speed_along = 0.0, 0.0, 0.0, 0.0
         for a in range(axes):
             speed += slope[a] ** 2
@@ -186,23 +196,7 @@ def _line(points: NDArray, times: NDArray, count: NDArray, min_faces: int, floor
         if m <= 0:
             continue
         first = size - m  # the newest ``m`` entries
-        t_mean = 0.0
-        for s in range(first, size):
-            t_mean += times[i, s]
-        t_mean /= m
-        sxx = 0.0
-        for s in range(first, size):
-            sxx += (times[i, s] - t_mean) ** 2
-        sxx = max(sxx, 1e-12)
-        for a in range(axes):
-            centre[a] = 0.0
-            for s in range(first, size):
-                centre[a] += points[i, s, a]
-            centre[a] /= m
-            acc = 0.0
-            for s in range(first, size):
-                acc += (times[i, s] - t_mean) * (points[i, s, a] - centre[a])
-            slope[i, a] = acc / sxx
+        t_mean, sxx = _fit(points[i], times[i], m, centre, slope[i])
         if count[i] < min_faces:
             continue
         rss = 0.0
