@@ -18,7 +18,7 @@ from common.messages import Cluster, Clusters, EgoMotion, Obstacle, Obstacles
 from services.tracker import Tracker, kalman
 from services.tracker import anchor as anchor_module
 from services.tracker.against import REPO, compare
-from services.tracker.anchor import anchors
+from services.tracker.anchor import SELECT_MAX, _kth, _order, anchors
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
 from services.tracker.fragments import Sight, Standing, components, footprint, in_contact, merge, near_boxes
 from services.tracker.left_behind import LeftBehind
@@ -556,6 +556,23 @@ def test_anchor_stays_on_the_faces_in_view_while_the_far_side_grows() -> None:
     a, b = points[0, 2], points[1, 2]
     assert abs(a[0] - b[0]) < 0.3 and abs(a[1] - b[1]) < 0.01  # the centroids are 1.75 m apart
     assert abs(short.centroid[0] - long.centroid[0]) > 1.5
+
+
+def test_the_anchors_sort_and_selection_agree_with_numpys() -> None:
+    # the counting sort and the buffered selection stand in for np.sort; ties, runs of one value and
+    # selections far from both ends (which sort instead) included
+    rng = np.random.default_rng(8)
+    buffer = np.empty(SELECT_MAX + 1)
+    for trial in range(300):
+        m = int(rng.integers(1, 400))
+        values = rng.normal(size=m) if trial % 3 else np.round(rng.normal(size=m) * 3.0) / 3.0
+        if trial % 50 == 0:
+            values[:] = 1.5
+        order = _order(values)
+        assert sorted(order.tolist()) == list(range(m))
+        np.testing.assert_array_equal(values[order], np.sort(values))
+        for k in {0, m - 1, m // 2, min(4, m - 1), int(rng.integers(0, m))}:
+            assert _kth(values, k, buffer) == np.sort(values)[k]
 
 
 def test_the_faces_are_the_percentiles_of_each_clusters_own_voxels() -> None:

@@ -80,8 +80,9 @@ class Footprint(NamedTuple):
 def footprint(clusters: list[Cluster]) -> Footprint:
     """All clusters' voxels in a row, their counts, this frame's points per voxel, and which are counted.
 
-    A cluster from a recording made before the mapper counted points weighs its voxels alike. One
-    pass over the clusters: three list comprehensions cost 60 µs a frame with 50 clusters.
+    A cluster from a recording made before the mapper counted points weighs its voxels alike. The
+    arrays are joined as they come (one concatenation each): reshaping each cluster's first cost
+    twice as much with 50 clusters.
     """
     voxels = [c.voxels for c in clusters]
     points = [c.voxel_points for c in clusters]
@@ -118,12 +119,12 @@ def _order(values: NDArray) -> NDArray:
         lo, hi = min(lo, values[i]), max(hi, values[i])
     bins = 2 * m
     width = (hi - lo) / bins
-    if not width > 0.0:  # all alike (or not finite): any order is sorted
-        return order
+    if not 0.0 < width < np.inf:  # all alike: any order is sorted (and none is taken from a bin off the end)
+        return np.argsort(values) if width != 0.0 else order
     start = np.zeros(bins + 1, np.int64)
     key = np.empty(m, np.int64)
     for i in range(m):
-        key[i] = min(int((values[i] - lo) / width), bins - 1)
+        key[i] = min(max(int((values[i] - lo) / width), 0), bins - 1)
         start[key[i] + 1] += 1
     for b in range(bins):
         start[b + 1] += start[b]
