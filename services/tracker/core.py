@@ -219,6 +219,7 @@ class Tracker:
                 t.corner_still_mps,
                 t.corner_update_gate,
                 t.corner_update_floor_mps,
+                t.corner_confirms,
             ),
         )
 

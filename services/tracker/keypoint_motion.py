@@ -48,6 +48,7 @@ class CornerRule:
     still_mps: float = 0.0  # sure (as above) that it is slower than this, they keep it from turning moving; 0: off
     update_gate: float = 0.0  # their velocity corrects the filter's within this squared innovation (2-D); 0: off
     update_floor_mps: float = 0.0  # ... its doubt never taken below this
+    confirms: bool = False  # sure of a speed, they may stand in for the faces' window as the label's second bound
 
 
 NO_CORNERS = CornerRule()
