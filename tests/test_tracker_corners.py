@@ -154,7 +154,9 @@ def test_corners_sure_of_a_walkers_pace_confirm_it_where_his_faces_scatter_too_m
     # faces swinging by up to 3 m: their window cannot confirm the filter's speed, the corners can
     # (their own turn-on is kept out of it with an unreachable threshold)
     def walk(speed: float, confirms: bool) -> list[bool]:
-        return _noisy_walk(True, speed, seed, swing_m=3.0, corner_on_mps=100.0, corner_confirms=confirms)
+        return _noisy_walk(
+            True, speed, seed, swing_m=3.0, corner_on_mps=100.0, corner_confirm_count=2 if confirms else 0
+        )
 
     assert walk(1.6, True).count(True) >= walk(1.6, False).count(True) + 4
     assert not any(walk(0.0, True))

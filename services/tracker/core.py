@@ -219,7 +219,8 @@ class Tracker:
                 t.corner_still_mps,
                 t.corner_update_gate,
                 t.corner_update_floor_mps,
-                t.corner_confirms,
+                t.corner_confirm_count,
+                t.corner_blend_count,
             ),
         )
 

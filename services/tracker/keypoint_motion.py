@@ -48,7 +48,8 @@ class CornerRule:
     still_mps: float = 0.0  # sure (as above) that it is slower than this, they keep it from turning moving; 0: off
     update_gate: float = 0.0  # their velocity corrects the filter's within this squared innovation (2-D); 0: off
     update_floor_mps: float = 0.0  # ... its doubt never taken below this
-    confirms: bool = False  # sure of a speed, they may stand in for the faces' window as the label's second bound
+    confirm_count: int = 0  # this many or more, sure of a speed, may stand in for the faces' window; 0: never
+    blend_count: int = 0  # this many or more are blended into a moving track's reported velocity; 0: min_count
 
 
 NO_CORNERS = CornerRule()
@@ -321,12 +322,12 @@ def correct_by_corners(t: TrackTable, rule: CornerRule) -> None:
 
 def blend_corners(t: TrackTable, rule: CornerRule, velocity: NDArray, velocity_cov: NDArray) -> None:
     """A moving track's reported horizontal velocity blended with its corners', each by the inverse of
-    its variance, where at least ``rule.min_count`` corners are on it; ``velocity_cov`` shrinks alike.
+    its variance, where at least ``rule.blend_count`` corners are on it; ``velocity_cov`` shrinks alike.
 
     The corners turn walkers moving whose filter still doubts their speed (labelling.py); what it
     reports for them is that doubted speed, unless the corners' is blended in.
     """
-    held = t.moving & (t.corner_count >= max(rule.min_count, 1)) & np.isfinite(t.corner_sigma)
+    held = t.moving & (t.corner_count >= max(rule.blend_count or rule.min_count, 1)) & np.isfinite(t.corner_sigma)
     if rule.samples <= 0 or not held.any():
         return
     reported_var = np.maximum(0.5 * (velocity_cov[:, 0, 0] + velocity_cov[:, 1, 1]), 1e-12)

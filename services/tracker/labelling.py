@@ -4,7 +4,7 @@ The filter's bound is its speed less some of its own doubt (motion_state.label);
 is the slope of the track's last faces less their scatter (motion_window.py). A track turns
 moving only when both clear the threshold, so a velocity the filter learnt from a face that slid
 is not believed until the faces move too; or when the corners the stereo stage follows on it are
-sure it moves (``by_corners``, keypoint_motion.py, "Session 40"). Five corners or more, sure of a
+sure it moves (``by_corners``, keypoint_motion.py, "Session 40"). Two corners or more, sure of a
 speed (their median less two of their sigmas), may also stand in for the faces as the second
 bound: a walker's faces at 15-25 m scatter with his smear while the corners on him do not
 ("Session 42"). Five refinements of the first
@@ -91,10 +91,10 @@ class MotionLabeller:
             confirm = np.where(use, across_confirm, confirm)
         else:
             confirm, _ = self.window_bounds(t, k, upright)
-        if self.corners.confirms and self.corners.samples > 0:
+        if self.corners.confirm_count > 0 and self.corners.samples > 0:
             # the corners, sure of a speed, may be the second opinion the faces' window is
-            low, _, sure = self._corner_speed(t)
-            confirm = np.maximum(confirm, np.where(sure, low, -np.inf))
+            low, _, _ = self._corner_speed(t)
+            confirm = np.maximum(confirm, np.where(t.corner_count >= self.corners.confirm_count, low, -np.inf))
         upright_k = k if self.upright_sigma_k is None else self.upright_sigma_k
         sigma_k = np.where(upright, upright_k, k)
         moving = label(t.moving, speed, sigma, slide, t.age, self.hysteresis, confirm, sigma_k)

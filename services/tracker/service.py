@@ -42,4 +42,3 @@ def stage(cfg: Config) -> Stage:
         empty=empty,
         counters=lambda: dict(getattr(core, "counters", {})),
     )
-
