@@ -250,9 +250,7 @@ class TrackerConfig:
     corner_still_mps: float = 1.0  # ... below this, plus its doubt, keeps a track standing (0.8, 1.2 alike; 0: off)
     corner_update_gate: float = 9.0  # their velocity corrects the filter's within this 2-D NIS (4 measured); 0: off
     corner_update_floor_mps: float = 0.2  # ... as a measurement at least this doubtful (m/s)
-    corner_confirm_count: int = (
-        2  # this many, their speed less its doubt, may confirm the filter's as the faces do (5 measured); 0: off
-    )
+    corner_confirm_count: int = 2  # this many, sure of a speed, may confirm the filter's (3, 5 measured); 0: off
     corner_blend_count: int = 2  # this many are blended into a moving track's reported velocity (5 until session 42)
 
 
