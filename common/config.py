@@ -243,7 +243,7 @@ class TrackerConfig:
     coast_min_age: int = 8  # ... if this many frames old (measured 0: a young track's wrong velocity coasted too)
     coast_max_speed_mps: float = 5.0  # ... and no faster (a car's rear is upright too; 3 measured the same)
     view_margin_m: float = 0.5  # a cluster this near (m) the image's side edge: followed at its far end (1.0: alike)
-    corner_samples: int = 6  # a followed corner's velocity needs this many frames of it (keypoint_motion.py); 0: off
+    corner_samples: int = 4  # a followed corner's velocity needs this many frames of it (3, 5, 6 measured); 0: off
     corner_min_count: int = 5  # a track's corners have an opinion when it holds this many (measured 3, 4, 5)
     corner_on_mps: float = 1.0  # ... and their median speed, less its doubt, above this turns it moving
     corner_sigma_k: float = 2.0  # ... that doubt taken this many times (1.5 measured: KITTI 0001 1 false frame)
