@@ -98,14 +98,15 @@ def speed_bounds(
     n = count.shape[0]
     along = direction is not None
     d = np.ascontiguousarray(direction, dtype=np.float64) if along else np.zeros((n, 2))
-    return _bounds(
+    return _bounds(*_compiled(points, times, count), float(floor_std), float(k), d, along)
+
+
+def _compiled(points: NDArray, times: NDArray, count: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+    """A window's arrays as the compiled fits take them (contiguous float64 and int64): one signature each."""
+    return (
         np.ascontiguousarray(points, dtype=np.float64),
         np.ascontiguousarray(times, dtype=np.float64),
         np.ascontiguousarray(count, dtype=np.int64),
-        float(floor_std),
-        float(k),
-        d,
-        along,
     )
 
 
@@ -177,13 +178,7 @@ def line_velocity(
     over both axes and never taken below ``floor_std`` (m), as in ``speed_bounds``. Compiled, track
     by track, as ``speed_bounds`` is: over numpy's batched arrays it cost 4 % of the tracker's time.
     """
-    return _line(
-        np.ascontiguousarray(points, dtype=np.float64),
-        np.ascontiguousarray(times, dtype=np.float64),
-        np.ascontiguousarray(count, dtype=np.int64),
-        int(min_faces),
-        float(floor_std),
-    )
+    return _line(*_compiled(points, times, count), int(min_faces), float(floor_std))
 
 
 @numba.njit(cache=True)
