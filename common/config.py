@@ -242,6 +242,7 @@ class TrackerConfig:
     coast_merged_frames: int = 3  # an upright track unseen inside a seen tracked box stays tracked this long; 0: off
     coast_min_age: int = 8  # ... if this many frames old (measured 0: a young track's wrong velocity coasted too)
     coast_max_speed_mps: float = 5.0  # ... and no faster (a car's rear is upright too; 3 measured the same)
+    coast_moving_frames: int = 2  # one labelled moving (as old, as slow) coasts this long, merged or not (3 measured); 0: off
     view_margin_m: float = 0.5  # a cluster this near (m) the image's side edge: followed at its far end (1.0: alike)
     corner_samples: int = 4  # a followed corner's velocity needs this many frames of it (3, 5, 6 measured); 0: off
     corner_min_count: int = 5  # a track's corners have an opinion when it holds this many (measured 3, 4, 5)

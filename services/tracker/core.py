@@ -53,9 +53,9 @@ from services.tracker.measurement import cut_covariance, stereo_covariance, view
 from services.tracker.motion_state import SLIDE_SMOOTHING, EgoVelocity, Hysteresis
 from services.tracker.observations import Observations, observe
 from services.tracker.parting import NO_PARTING, Parting, cut_by_view, part_covariance, part_tracked
-from services.tracker.queues import NO_COASTING, Coasting, advance, merged_away
+from services.tracker.queues import NO_COASTING, Coasting, advance, coasts
 from services.tracker.report import FaceVelocity, obstacles_of
-from services.tracker.track import ACCEPTANCE, GHOST, TRACKED, TrackTable, born
+from services.tracker.track import ACCEPTANCE, TRACKED, TrackTable, born
 
 NDArray = npt.NDArray[Any]
 
@@ -196,7 +196,7 @@ class Tracker:
             upright_sigma_k=t.upright_sigma_k,
             upright_accel_std=t.upright_process_noise or None,
             side_slice_m=t.side_slice_m,
-            coasting=Coasting(t.coast_merged_frames, t.coast_min_age, t.coast_max_speed_mps),
+            coasting=Coasting(t.coast_merged_frames, t.coast_min_age, t.coast_max_speed_mps, t.coast_moving_frames),
             view_margin_m=t.view_margin_m,
             jump_speed_std=t.jump_speed_std,
             young_jump_frames=t.young_jump_frames,
@@ -384,11 +384,12 @@ class Tracker:
         # a centroid further off than the filter allows is a cluster that changed (split, merge,
         # another face in view), not the object moving: re-anchor (jumps.py)
         jump = self.jumps.of(nis)
-        # a ghost found again metres from where it was predicted may be another object: one seen
-        # a few frames, its speed unknown, takes the step as speed, and a window spanning the gap
-        # agrees; the window starts again (synthetic urban-s1: a standing walker called moving at 6 m/s)
+        # a ghost, or a track that coasted (queues.py), found again metres from where it was
+        # predicted may be another object: one seen a few frames, its speed unknown, takes the step
+        # as speed, and a window spanning the gap agrees; the window starts again (synthetic
+        # urban-s1: a standing walker called moving at 6 m/s)
         off = np.linalg.norm((point - x_before[:, 0:3])[:, 0:2], axis=1)
-        refound = (t.queue[rows] == GHOST) & (off > self.revive_restart_m) & (self.revive_restart_m > 0.0)
+        refound = (t.misses[rows] > 0) & (off > self.revive_restart_m) & (self.revive_restart_m > 0.0)
         self.jumps.re_anchor(jump, x, p, x_before, p_before, point, r)
         # and the faces of the old shape say nothing about the new one's motion, even where the
         # filter let a change of extent pass as visibility (a parked car leaving the blob it was
@@ -438,7 +439,7 @@ class Tracker:
         seen[rows] = True
         held = self._inside_known(seen, piece_of, sight)
         t = self.tracks
-        coast = merged_away(t, seen, elapsed, self.coasting, self.standing.upright(t.bbox_max - t.bbox_min))
+        coast = coasts(t, seen, elapsed, self.coasting, self.standing.upright(t.bbox_max - t.bbox_min))
         keep = advance(t, seen, elapsed, self.accept_frames, self.ghost_frames, held, self.accept_misses, coast)
         self.counters["tracks_dropped"] += int((~keep).sum())
         self.tracks.keep(keep)
