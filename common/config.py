@@ -242,7 +242,7 @@ class TrackerConfig:
     coast_merged_frames: int = 3  # an upright track unseen inside a seen tracked box stays tracked this long; 0: off
     coast_min_age: int = 8  # ... if this many frames old (measured 0: a young track's wrong velocity coasted too)
     coast_max_speed_mps: float = 5.0  # ... and no faster (a car's rear is upright too; 3 measured the same)
-    coast_moving_frames: int = 2  # one labelled moving (as old, as slow) coasts this long, merged or not (3 measured); 0: off
+    coast_moving_frames: int = 2  # ... labelled moving, it coasts this long, merged or not (3 measured); 0: off
     view_margin_m: float = 0.5  # a cluster this near (m) the image's side edge: followed at its far end (1.0: alike)
     corner_samples: int = 4  # a followed corner's velocity needs this many frames of it (3, 5, 6 measured); 0: off
     corner_min_count: int = 5  # a track's corners have an opinion when it holds this many (measured 3, 4, 5)
@@ -253,6 +253,7 @@ class TrackerConfig:
     corner_update_floor_mps: float = 0.2  # ... as a measurement at least this doubtful (m/s)
     corner_confirm_count: int = 2  # this many, sure of a speed, may confirm the filter's (3, 5 measured); 0: off
     corner_blend_count: int = 2  # this many are blended into a moving track's reported velocity (5 until session 42)
+    corner_across_std_m: float = 0.05  # a corner's place across the line of sight (m; 0.03, 0.1 measured); 0: off
 
 
 @dataclass

@@ -90,6 +90,48 @@ def test_a_clusters_corners_outvote_a_standing_neighbours_merged_into_it() -> No
     assert np.all(found.sigma > 0.0) and np.all(np.isfinite(found.sigma))
 
 
+def _ranged(velocity: tuple[float, float], seed: int, range_std: float = 0.5) -> CornerHistory:
+    """Four corners 20 m ahead moving at ``velocity`` (x, y), followed eight frames, each frame's
+    range (x, the line of sight from the origin) off by ``range_std``: the stereo stage's doubt at 20-25 m."""
+    rng = np.random.default_rng(seed)
+    start = np.column_stack([np.full(4, 20.0), np.linspace(-0.2, 0.2, 4), np.linspace(0.3, 1.5, 4)])
+    history = CornerHistory()
+    for k in range(HISTORY):
+        xyz = start + np.array([*velocity, 0.0]) * PERIOD_S * k
+        xyz[:, 0] += rng.normal(0.0, range_std, 4)
+        history.update(np.arange(4), xyz, np.full(4, range_std), PERIOD_S * k, epoch=0)
+    return history
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_corners_crossing_the_line_of_sight_are_sure_of_their_speed_across_it(seed: int) -> None:
+    # a walker crossing the road 20 m ahead: his corners' ranges scatter by 0.5 m, their bearings hardly
+    walker = of_voxels(box_voxels((19.0, -0.5, 0.0), (21.0, 1.5, 1.75)))
+    stacked = footprint([walker])
+
+    def seen(history: CornerHistory, across_std_m: float = 0.05):  # noqa: ANN202
+        return corner_velocity(history, stacked.voxels, stacked.counts, np.arange(1), 1, EDGE, 4, np.zeros(2), across_std_m)
+
+    crossing = seen(_ranged((0.0, 1.2), seed))
+    assert crossing.across[0] == pytest.approx(1.2, abs=0.05)
+    assert crossing.across_sigma[0] < 0.15
+    # as a speed in the plane the same corners are no surer than a standing object's
+    assert np.hypot(*crossing.velocity[0]) - 2.0 * crossing.sigma[0] < 0.55
+    assert abs(crossing.across[0]) - 2.0 * crossing.across_sigma[0] > 0.9
+    # walking away, along the line of sight, they say nothing across it
+    assert abs(seen(_ranged((1.2, 0.0), seed)).across[0]) < 0.05
+    assert np.isinf(seen(_ranged((0.0, 1.2), seed), across_std_m=0.0).across_sigma).all()
+    # the label takes the larger of the two lower bounds
+    tracker = new_tracker()
+    for k in range(6):
+        step(tracker, k, [of_voxels(box_voxels((20.0, 0.12 * k, 0.0), (20.5, 0.5 + 0.12 * k, 1.75)))])
+    t = tracker.tracks
+    t.corner_velocity[:], t.corner_sigma[:], t.corner_count[:] = crossing.velocity, crossing.sigma, 4
+    t.corner_across[:], t.corner_across_sigma[:] = crossing.across, crossing.across_sigma
+    low, _, _ = tracker.labeller._corner_speed(t)
+    assert low[0] == pytest.approx(abs(crossing.across[0]) - 2.0 * crossing.across_sigma[0])
+
+
 def _noisy_walk(
     tracker_corners: bool, speed: float, seed: int = 0, frames: int = 20, swing_m: float = 1.5, **settings: object
 ) -> list[bool]:

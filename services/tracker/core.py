@@ -221,6 +221,7 @@ class Tracker:
                 t.corner_update_floor_mps,
                 t.corner_confirm_count,
                 t.corner_blend_count,
+                t.corner_across_std_m,
             ),
         )
 
@@ -254,7 +255,9 @@ class Tracker:
         if trusted:
             self._correct(rows, obs.take(cols), r[cols])
         piece_of = {int(i): pieces[int(obs.index[j])] for i, j in zip(rows, cols, strict=True)}
-        track_corners(self.tracks, self.corners, self.corner_rule, rows, cols, stacked, clusters.voxel_edge)
+        track_corners(
+            self.tracks, self.corners, self.corner_rule, rows, cols, stacked, clusters.voxel_edge, pose[0:2, 3]
+        )
         if trusted:
             slid = self.left_behind.slid(
                 self.tracks.ids, rows, cols, obs, pieces, self.tracks.moving, clusters.voxel_edge

@@ -9,6 +9,14 @@ they are half of them. Its doubt is what the stereo stage says of each corner's 
 disparity's doubt grows with the square of the range) carried through the line's fit, and shrunk
 by their number only as far as their errors are their own: corners on one object share part of
 them (``SHARED``). Their scatter about the median, where larger, is taken instead.
+
+That doubt is the range's, along the line of sight. Across it a corner's place is known to a
+fraction of a pixel, millimetres at 20 m: a walker crossing the road, his four corners read at
+0.7-0.9 m/s give two sigmas of 1.5 m/s along the line of sight and of 0.15 m/s across it. So each
+track also gets the median of its corners' speeds across the line of sight, with a doubt of its
+own (their scatter, or ``CornerRule.across_std_m`` through the line's fit); its size less that
+doubt is a lower bound on the track's speed too (labelling.py; docs/results/tracking.md,
+"Session 43").
 """
 
 from __future__ import annotations
@@ -50,6 +58,7 @@ class CornerRule:
     update_floor_mps: float = 0.0  # ... its doubt never taken below this
     confirm_count: int = 0  # this many or more, sure of a speed, may stand in for the faces' window; 0: never
     blend_count: int = 0  # this many or more are blended into a moving track's reported velocity; 0: min_count
+    across_std_m: float = 0.0  # a corner's position doubt across the line of sight (m); 0: not judged across
 
 
 NO_CORNERS = CornerRule()
@@ -57,11 +66,14 @@ NO_CORNERS = CornerRule()
 
 @dataclass(frozen=True)
 class CornerVelocity:
-    """Per piece: the median velocity (n, 2) of the corners on it, its doubt (n,) and their number (n,)."""
+    """Per piece: the median velocity (n, 2) of the corners on it, its doubt (n,) and their number (n,);
+    and the median of their speeds across the line of sight (signed, n) with its own doubt (n,)."""
 
     velocity: NDArray
     sigma: NDArray
     count: NDArray
+    across: NDArray
+    across_sigma: NDArray
 
 
 class CornerHistory:
@@ -162,7 +174,8 @@ def _fit_lines(xy: NDArray, t: NDArray, n: NDArray, rows: NDArray) -> tuple[NDAr
 
 
 def corner_velocity(
-    history: CornerHistory, voxels: NDArray, counts: NDArray, slot: NDArray, pieces: int, edge: float, min_samples: int
+    history: CornerHistory, voxels: NDArray, counts: NDArray, slot: NDArray, pieces: int, edge: float, min_samples: int,
+    eye: NDArray | None = None, across_std_m: float = 0.0,
 ) -> CornerVelocity:
     """Per piece (``0 .. pieces - 1``): its corners (those in its voxels this frame) and their median velocity.
 
@@ -172,14 +185,23 @@ def corner_velocity(
     """
     owner = np.repeat(np.asarray(slot, dtype=np.int64), counts)
     if pieces == 0 or len(owner) == 0 or len(history.ids) == 0:
-        return CornerVelocity(np.zeros((pieces, 2)), np.full(pieces, np.inf), np.zeros(pieces, dtype=np.int64))
-    velocity, spread, stereo, count = _piece_velocities(
+        none = np.full(pieces, np.inf)
+        return CornerVelocity(np.zeros((pieces, 2)), none, np.zeros(pieces, dtype=np.int64), np.zeros(pieces), none)
+    eye = np.zeros(2) if eye is None else np.asarray(eye, dtype=np.float64)
+    velocity, spread, stereo, count, across, across_spread, across_factor = _piece_velocities(
         np.ascontiguousarray(voxels), owner, history.now, history.n, history.missed, max(min_samples, 2), edge,
-        history.xy, history.t, history.std, pieces,
+        history.xy, history.t, history.std, pieces, eye,
     )  # fmt: skip
     m = np.maximum(count, 1).astype(np.float64)
-    sigma = np.maximum(MAD_SIGMA * spread / np.sqrt(m), stereo * np.sqrt(SHARED + (1.0 - SHARED) / m))
-    return CornerVelocity(velocity, np.where(count > 0, sigma, np.inf), count)
+    shrink = np.sqrt(SHARED + (1.0 - SHARED) / m)
+    sigma = np.maximum(MAD_SIGMA * spread / np.sqrt(m), stereo * shrink)
+    across_sigma = np.maximum(MAD_SIGMA * across_spread / np.sqrt(m), across_std_m * across_factor * shrink)
+    if across_std_m <= 0.0:
+        across_sigma[:] = np.inf
+    known = count > 0
+    return CornerVelocity(
+        velocity, np.where(known, sigma, np.inf), count, across, np.where(known, across_sigma, np.inf)
+    )
 
 
 @numba.njit(cache=True)
@@ -212,12 +234,14 @@ def _median(values: NDArray, scratch: NDArray) -> float:
 @numba.njit(cache=True)
 def _piece_velocities(
     voxels: NDArray, owner: NDArray, now: NDArray, n: NDArray, missed: NDArray, min_n: int, edge: float,
-    xy: NDArray, t: NDArray, std: NDArray, pieces: int,
-) -> tuple[NDArray, NDArray, NDArray, NDArray]:  # fmt: skip
+    xy: NDArray, t: NDArray, std: NDArray, pieces: int, eye: NDArray,
+) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, NDArray, NDArray]:  # fmt: skip
     """Per piece, from the corners seen this frame with ``min_n`` positions or more that lie in one of
     its voxels (``voxels`` in a row, ``owner`` says whose; -1: nobody's; of two, the lower): the
     median of their lines' velocities (x, y), the median distance from it, the median doubt their
-    ranges bring, and how many.
+    ranges bring, and how many; then the median of their speeds across the line of sight from
+    ``eye`` (signed), the median distance from it, and the median factor that turns a position's
+    doubt into their lines'.
 
     The corners' voxels go into an open-addressing table, each voxel's corners chained, and every
     cluster voxel looks its own up once. Sorting the voxels' keys in numpy and searching them
@@ -265,9 +289,15 @@ def _piece_velocities(
             fill[whose[c]] += 1
     slope, factor = _fit_lines(xy, t, n, members)
     doubt, off = np.empty(members.shape[0]), np.empty(members.shape[0])
+    side = np.empty(members.shape[0])  # each corner's speed across its line of sight from the eye
     for i in range(members.shape[0]):
-        doubt[i] = std[members[i]] * factor[i]
+        c = members[i]
+        doubt[i] = std[c] * factor[i]
+        rx, ry = now[c, 0] - eye[0], now[c, 1] - eye[1]
+        norm = max(np.sqrt(rx * rx + ry * ry), 1e-9)
+        side[i] = (-ry * slope[i, 0] + rx * slope[i, 1]) / norm
     velocity, spread, stereo = np.zeros((pieces, 2)), np.zeros(pieces), np.zeros(pieces)
+    across, across_spread, across_factor = np.zeros(pieces), np.zeros(pieces), np.zeros(pieces)
     scratch = np.empty(64)
     for p in range(pieces):
         if count[p] == 0:
@@ -279,7 +309,13 @@ def _piece_velocities(
             off[i] = np.sqrt((slope[i, 0] - vx) ** 2 + (slope[i, 1] - vy) ** 2)
         spread[p] = _median(off[a:b], scratch)
         stereo[p] = _median(doubt[a:b], scratch)
-    return velocity, spread, stereo, count
+        va = _median(side[a:b], scratch)
+        across[p] = va
+        for i in range(a, b):
+            off[i] = abs(side[i] - va)
+        across_spread[p] = _median(off[a:b], scratch)
+        across_factor[p] = _median(factor[a:b], scratch)
+    return velocity, spread, stereo, count, across, across_spread, across_factor
 
 
 def track_corners(
@@ -290,16 +326,21 @@ def track_corners(
     cols: NDArray,
     stacked: Footprint,
     edge: float,
+    eye: NDArray | None = None,
 ) -> None:
     """Each track's corners this frame, from the cluster it was paired with (track ``rows``, observation
-    ``cols`` of ``stacked``): their median velocity, its doubt and their number; none on an unseen track."""
+    ``cols`` of ``stacked``): their median velocity, its doubt and their number, and their speed across
+    the line of sight from ``eye``; none on an unseen track."""
     t.corner_count[:] = 0
     if rule.samples <= 0 or len(rows) == 0:
         return
     slot = np.full(len(stacked.counts), -1, dtype=np.int64)
     slot[cols] = np.arange(len(cols))
-    c = corner_velocity(history, stacked.voxels, stacked.counts, slot, len(rows), edge, rule.samples)
+    c = corner_velocity(
+        history, stacked.voxels, stacked.counts, slot, len(rows), edge, rule.samples, eye, rule.across_std_m
+    )
     t.corner_velocity[rows], t.corner_sigma[rows], t.corner_count[rows] = c.velocity, c.sigma, c.count
+    t.corner_across[rows], t.corner_across_sigma[rows] = c.across, c.across_sigma
 
 
 def correct_by_corners(t: TrackTable, rule: CornerRule) -> None:

@@ -108,7 +108,13 @@ class MotionLabeller:
         rule = self.corners
         speed = np.hypot(t.corner_velocity[:, 0], t.corner_velocity[:, 1])
         doubt = rule.sigma_k * t.corner_sigma
-        return speed - doubt, speed + doubt, t.corner_count >= rule.min_count
+        low = speed - doubt
+        if rule.across_std_m > 0.0:
+            # across the line of sight a corner's place is known to millimetres, along it to
+            # decimetres: its speed across is a lower bound on its speed, and a sure one
+            with np.errstate(invalid="ignore"):
+                low = np.maximum(low, np.abs(t.corner_across) - rule.sigma_k * t.corner_across_sigma)
+        return low, speed + doubt, t.corner_count >= rule.min_count
 
     def held_by_corners(self, t: TrackTable) -> NDArray:
         """Which standing tracks the corners on them are sure stand still: none of them turns moving.

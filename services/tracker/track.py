@@ -63,6 +63,8 @@ class TrackTable:
     corner_velocity: NDArray = _empty(2)  # median velocity of the followed corners on it (keypoint_motion.py)
     corner_sigma: NDArray = _empty()  # ... its doubt (m/s)
     corner_count: NDArray = _empty(dtype=np.int64)  # ... and how many corners; 0: none, no opinion
+    corner_across: NDArray = _empty()  # their median speed across the line of sight (signed, m/s)
+    corner_across_sigma: NDArray = _empty()  # ... its doubt (m/s)
 
     def __len__(self) -> int:
         return int(self.ids.shape[0])
@@ -124,4 +126,6 @@ def born(ids: NDArray, obs: Observations, p: NDArray, clock: float, parted: NDAr
         corner_velocity=np.zeros((n, 2)),
         corner_sigma=np.full(n, np.inf),
         corner_count=np.zeros(n, dtype=np.int64),
+        corner_across=np.zeros(n),
+        corner_across_sigma=np.full(n, np.inf),
     )
