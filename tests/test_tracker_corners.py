@@ -10,7 +10,14 @@ from test_tracker import EDGE, box_voxels, new_tracker, of_voxels, step
 
 from common.messages import Cluster, Clusters, EgoMotion
 from services.tracker.anchor import footprint
-from services.tracker.keypoint_motion import HISTORY, MAX_GAP, CornerHistory, _fit_lines, corner_velocity
+from services.tracker.keypoint_motion import (
+    HISTORY,
+    MAX_GAP,
+    CornerHistory,
+    CornerVelocity,
+    _fit_lines,
+    corner_velocity,
+)
 
 PERIOD_S = 0.1
 
@@ -109,8 +116,9 @@ def test_corners_crossing_the_line_of_sight_are_sure_of_their_speed_across_it(se
     walker = of_voxels(box_voxels((19.0, -0.5, 0.0), (21.0, 1.5, 1.75)))
     stacked = footprint([walker])
 
-    def seen(history: CornerHistory, across_std_m: float = 0.05):  # noqa: ANN202
-        return corner_velocity(history, stacked.voxels, stacked.counts, np.arange(1), 1, EDGE, 4, np.zeros(2), across_std_m)
+    def seen(history: CornerHistory, across_std_m: float = 0.05) -> CornerVelocity:
+        eye = np.zeros(2)
+        return corner_velocity(history, stacked.voxels, stacked.counts, np.arange(1), 1, EDGE, 4, eye, across_std_m)
 
     crossing = seen(_ranged((0.0, 1.2), seed))
     assert crossing.across[0] == pytest.approx(1.2, abs=0.05)
