@@ -11,8 +11,9 @@ by their number only as far as their errors are their own: corners on one object
 them (``SHARED``). Their scatter about the median, where larger, is taken instead.
 
 That doubt is the range's, along the line of sight. Across it a corner's place is known to a
-fraction of a pixel, millimetres at 20 m: a walker crossing the road, his four corners read at
-0.7-0.9 m/s give two sigmas of 1.5 m/s along the line of sight and of 0.15 m/s across it. So each
+fraction of a pixel, millimetres at 20 m: a walker setting off across the road 15 m ahead, his
+four to six corners read 0.7-0.9 m/s with a sigma of 0.27-0.74 m/s, and of 0.06-0.14 m/s across
+the line of sight (synthetic crossing-s8, walker 7). So each
 track also gets the median of its corners' speeds across the line of sight, with a doubt of its
 own (their scatter, or ``CornerRule.across_std_m`` through the line's fit); its size less that
 doubt is a lower bound on the track's speed too (labelling.py; docs/results/tracking.md,
