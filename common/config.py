@@ -245,7 +245,7 @@ class TrackerConfig:
     coast_moving_frames: int = 2  # ... labelled moving, it coasts this long, merged or not (3 measured); 0: off
     view_margin_m: float = 0.5  # a cluster this near (m) the image's side edge: followed at its far end (1.0: alike)
     corner_samples: int = 4  # a followed corner's velocity needs this many frames of it (3, 5, 6 measured); 0: off
-    corner_min_count: int = 5  # a track's corners have an opinion when it holds this many (measured 3, 4, 5)
+    corner_min_count: int = 4  # a track's corners have an opinion when it holds this many (5 until session 43)
     corner_on_mps: float = 1.0  # ... and their median speed, less its doubt, above this turns it moving
     corner_sigma_k: float = 2.0  # ... that doubt taken this many times (1.5 measured: KITTI 0001 1 false frame)
     corner_still_mps: float = 1.0  # ... below this, plus its doubt, keeps a track standing (0.8, 1.2 alike; 0: off)
