@@ -45,7 +45,8 @@ NDArray = npt.NDArray[Any]
 
 @dataclass(frozen=True)
 class Coasting:
-    """How long an upright track may stay tracked while merged into a neighbour's cluster, and from what age."""
+    """How long an upright track may stay tracked while merged into a neighbour's cluster, or unseen while
+    labelled moving, and from what age."""
 
     frames: int = 0  # 0: never
     min_age: int = 0  # frames of track
