@@ -327,7 +327,7 @@ def track_corners(
     cols: NDArray,
     stacked: Footprint,
     edge: float,
-    eye: NDArray | None = None,
+    eye: NDArray,
 ) -> None:
     """Each track's corners this frame, from the cluster it was paired with (track ``rows``, observation
     ``cols`` of ``stacked``): their median velocity, its doubt and their number, and their speed across
