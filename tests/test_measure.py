@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import load_script
 
-from common.evaluation.evaluate import matched_frames
+from common.evaluation.evaluate import evaluate_recording, matched_frames
 from common.evaluation.inputs import read_inputs
 from common.recording import open_recording
 from services.demo import BUNDLED
@@ -76,3 +76,27 @@ def test_a_speed_trace_follows_one_moving_object_frame_by_frame(tmp_path: Path) 
         patch.setattr("sys.argv", argv)
         assert trace.main() == 0
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_sweep_gives_the_figures_evaluate_gives_the_restarted_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """scripts/sweep_tracker.py: runs read once, the tracker remade per variant, the counts of `--from tracker`."""
+    sweep = load_script("sweep_tracker")
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    assert process_file(BUNDLED, runs / "urban-s7_run.mcap", max_frames=16, with_frames=False) == 16
+    out = tmp_path / "sweep.json"
+    variants = ["--variant", "base", "--variant", "late", "tracker.moving_min_frames=12"]
+    assert sweep.main(["--runs", f"held={runs}", *variants, "--json", str(out)]) == 0
+    swept = json.loads(out.read_text())
+    for name, sets in (("base", []), ("late", ["tracker.moving_min_frames=12"])):
+        restarted = tmp_path / f"{name}_run.mcap"
+        process_file(runs / "urban-s7_run.mcap", restarted, with_frames=False, resume_from="tracker", sets=sets)
+        moving = evaluate_recording(restarted)["moving"]
+        got = swept[name]["runs"]["held"]["urban-s7"]
+        assert (got["tp"], got["fp"], got["fn"]) == (moving["tp"], moving["fp"], moving["fn"])
+    base, late = (swept[n]["runs"]["held"]["urban-s7"] for n in ("base", "late"))
+    assert base["tp"] > late["tp"]  # a car is called moving by frame 16 only when tracks may be labelled young
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[1].startswith("base") and f"held {base['tp']}/{base['fp']}/{base['fn']}" in printed[1]
