@@ -197,8 +197,8 @@ class TrackerConfig:
     position_gate: float = 3.5  # pairs further apart than this many standard deviations never associate
     accept_frames: int = 2  # 3: urban moving TP 3-6 points lower (pedestrians seen intermittently)
     accept_misses: int = 0  # frames in a row a new track may go unseen before it is dropped (paper: 0)
-    ghost_frames: int = 5
-    moving_on_mps: float = 0.55  # evaluation: moving >= 1.0 m/s, stationary < 0.3 m/s (0.7 until session 24)
+    ghost_frames: int = 6  # 5 until session 44 (scripts/sweep_tracker.py: 7 let KITTI 0001 call 4 frames moving)
+    moving_on_mps: float = 0.5  # evaluation: moving >= 1.0 m/s, stationary < 0.3 m/s (0.7 until 24, 0.55 until 44)
     moving_off_mps: float = 0.4
     moving_sigma_k: float = 1.5  # the label follows speed - k * speed std (minus the box-growth slide)
     moving_min_frames: int = 4  # frames of track before it may be called moving
@@ -238,7 +238,7 @@ class TrackerConfig:
     # ... and only its growth across the line of sight counts as slide (labelling.py)
     narrow_by_points: bool = True  # ... narrow by its points (width across, core's depth along), not its box
     revive_restart_m: float = 1.0  # a ghost found this far (m) from its prediction restarts its speed window; 0: off
-    merge_growth_m: float = 2.0  # cluster wider by more (m, x or y) than its track's smoothed extent: box kept; 0: off
+    merge_growth_m: float = 2.0  # cluster wider by more (m) than its track's smoothed extent: box kept; 0: off
     coast_merged_frames: int = 3  # an upright track unseen inside a seen tracked box stays tracked this long; 0: off
     coast_min_age: int = 8  # ... if this many frames old (measured 0: a young track's wrong velocity coasted too)
     coast_max_speed_mps: float = 5.0  # ... and no faster (a car's rear is upright too; 3 measured the same)
@@ -247,7 +247,7 @@ class TrackerConfig:
     corner_samples: int = 4  # a followed corner's velocity needs this many frames of it (3, 5, 6 measured); 0: off
     corner_min_count: int = 4  # a track's corners have an opinion when it holds this many (5 until session 43)
     corner_on_mps: float = 1.0  # ... and their median speed, less its doubt, above this turns it moving
-    corner_sigma_k: float = 2.0  # ... that doubt taken this many times (1.5 measured: KITTI 0001 1 false frame)
+    corner_sigma_k: float = 1.75  # ... that doubt taken this many times (2.0 until 44; 1.5: KITTI 1 false frame)
     corner_still_mps: float = 1.0  # ... below this, plus its doubt, keeps a track standing (0.8, 1.2 alike; 0: off)
     corner_update_gate: float = 9.0  # their velocity corrects the filter's within this 2-D NIS (4 measured); 0: off
     corner_update_floor_mps: float = 0.2  # ... as a measurement at least this doubtful (m/s)

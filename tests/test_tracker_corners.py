@@ -137,7 +137,8 @@ def test_corners_crossing_the_line_of_sight_are_sure_of_their_speed_across_it(se
     t.corner_velocity[:], t.corner_sigma[:], t.corner_count[:] = crossing.velocity, crossing.sigma, 4
     t.corner_across[:], t.corner_across_sigma[:] = crossing.across, crossing.across_sigma
     low, _, _ = tracker.labeller._corner_speed(t)
-    assert low[0] == pytest.approx(abs(crossing.across[0]) - 2.0 * crossing.across_sigma[0])
+    k = tracker.labeller.corners.sigma_k
+    assert low[0] == pytest.approx(abs(crossing.across[0]) - k * crossing.across_sigma[0])
 
 
 def _noisy_walk(
