@@ -1,4 +1,4 @@
-"""Many tracker settings against many recorded runs, in one process: each run is read once.
+"""Many tracker (or mapper) settings against many recorded runs, in one process: each run is read once.
 
 ``measure.py --from tracker`` restarts a run through the tracker and writes a new recording for
 each setting, about four minutes for session 41's 61 runs. Here the runs' clusters, egomotion and
@@ -10,6 +10,11 @@ the restarted recording (tests/test_measure.py checks it), so a sweep picks cand
     .venv/bin/python scripts/sweep_tracker.py --runs tuning=/tmp/m/s41T held=/tmp/m/s41 \\
         --set tracker.corner_samples=4 --variant base --variant on0.5 tracker.moving_on_mps=0.5
 
+``--from voxel_mapper`` keeps the point clouds instead and remakes the clusters too, for the
+mapper's settings: 28 s a setting over 52 runs of urban, crossing, overtake and slope with
+``--jobs 2`` (about 2 MB of points a frame held in memory), and the mean one-cluster share is
+printed beside each scenario's counts.
+
 ``--variants FILE`` reads one variant a line (a name, then its ``key=value`` settings; ``#``
 comments). Each variant prints one line per set of runs: pooled moving TP / FP / FN frames and
 speed RMSE, and the same per scenario.
@@ -19,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import sys
 import time
 from dataclasses import dataclass
@@ -31,11 +37,12 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from common.evaluation.evaluate import Evaluation, obstacle_figures  # noqa: E402
-from common.evaluation.inputs import RunInputs, read_inputs  # noqa: E402
-from common.messages import Clusters, EgoMotion  # noqa: E402
+from common.evaluation.inputs import RunInputs, cluster_boxes, read_inputs  # noqa: E402
+from common.messages import Clusters, EgoMotion, PointCloud  # noqa: E402
 from common.recording import RecordingReader, open_recording  # noqa: E402
-from services.pipeline import config_for  # noqa: E402
+from services.pipeline import RESUMABLE, config_for  # noqa: E402
 from services.tracker import Tracker  # noqa: E402
+from services.voxel_mapper import VoxelMapper  # noqa: E402
 
 
 @dataclass
@@ -44,42 +51,62 @@ class LoadedRun:
 
     name: str  # the scenario and seed, e.g. urban-s7
     reader: RecordingReader  # for the configuration the run was made with
-    frames: list[tuple[int, Clusters, EgoMotion]]
+    frames: list[tuple[int, Clusters | PointCloud, EgoMotion]]  # the stage's inputs (RESUMABLE)
     inputs: RunInputs
 
 
-def load_run(path: Path) -> LoadedRun:
+def load_run(path: Path, stage: str = "tracker") -> LoadedRun:
     reader = open_recording(path)
-    seen: dict[int, dict[str, Any]] = {}
-    for _, msg in reader.messages(topics=("voxel_mapper/clusters", "odometry/ego")):
-        seen.setdefault(msg.frame_id, {})[type(msg).__name__] = msg
-    frames = [(f, got["Clusters"], got["EgoMotion"]) for f, got in sorted(seen.items()) if len(got) == 2]
+    seen: dict[int, list[Any]] = {}
+    for _, msg in reader.messages(topics=RESUMABLE[stage]):
+        got = seen.setdefault(msg.frame_id, [None, None])
+        got[isinstance(msg, EgoMotion)] = msg
+    frames = [(f, got[0], got[1]) for f, got in sorted(seen.items()) if None not in got]
     inputs = read_inputs(path)
-    inputs.clusters = {}  # segmentation is the mapper's figure: not scored again
+    inputs.clusters = {}  # segmentation is the mapper's figure: scored only when the mapper runs again
     return LoadedRun(path.name.removesuffix("_run.mcap").removesuffix(".mcap"), reader, frames, inputs)
 
 
 def score(run: LoadedRun, sets: list[str]) -> dict[str, Any]:
-    """The run's moving and speed figures with the tracker remade under ``sets``."""
-    tracker = Tracker.from_config(config_for(run.reader, None, sets, stored=True))
-    run.inputs.obstacles = {f: tracker.process(clusters, ego) for f, clusters, ego in run.frames}
+    """The run's moving and speed figures with the tracker (and the mapper, if the run holds points) remade."""
+    cfg = config_for(run.reader, None, sets, stored=True)
+    tracker = Tracker.from_config(cfg)
+    mapper = VoxelMapper.from_config(cfg) if run.frames and isinstance(run.frames[0][1], PointCloud) else None
+    run.inputs.obstacles = {}
+    for f, given, ego in run.frames:
+        clusters = mapper.process(given, ego) if mapper is not None else given
+        assert isinstance(clusters, Clusters)
+        if mapper is not None:
+            run.inputs.clusters[f] = cluster_boxes(clusters)
+        run.inputs.obstacles[f] = tracker.process(clusters, ego)
     figures = obstacle_figures(run.inputs, Evaluation(result={}))
-    moving, speed = figures["moving"] or {}, figures["speed"] or {}
+    moving, speed, segments = figures["moving"] or {}, figures["speed"] or {}, figures["segmentation"] or {}
     return {
         "tp": int(moving.get("tp", 0)),
         "fp": int(moving.get("fp", 0)),
         "fn": int(moving.get("fn", 0)),
         "rmse_mps": speed.get("rmse_mps"),
         "pairs": int(speed.get("pairs", 0)),
+        "one_cluster_pct": segments.get("one_cluster_pct"),
     }
 
 
+#: the runs a forked worker scores (set before the pool forks, so they are not copied per task)
+_RUNS: list[LoadedRun] = []
+
+
+def _score_one(task: tuple[int, list[str]]) -> dict[str, Any]:
+    return score(_RUNS[task[0]], task[1])
+
+
 def pooled(rows: list[dict[str, Any]]) -> str:
-    """TP / FP / FN summed, and the speed RMSE pooled by pairs."""
+    """TP / FP / FN summed, the speed RMSE pooled by pairs, and the mean one-cluster % where scored."""
     tp, fp, fn = (sum(r[k] for r in rows) for k in ("tp", "fp", "fn"))
     pairs = sum(r["pairs"] for r in rows)
     sq = sum(r["pairs"] * r["rmse_mps"] ** 2 for r in rows if r["pairs"])
-    return f"{tp}/{fp}/{fn}" + (f" {np.sqrt(sq / pairs):.2f}" if pairs else "")
+    one = [r["one_cluster_pct"] for r in rows if r.get("one_cluster_pct") is not None]
+    rmse = f" {np.sqrt(sq / pairs):.2f}" if pairs else ""
+    return f"{tp}/{fp}/{fn}{rmse}" + (f" one {np.mean(one):.1f}" if one else "")
 
 
 def line(name: str, results: dict[str, dict[str, dict[str, Any]]]) -> str:
@@ -110,22 +137,37 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--variant", action="append", nargs="+", metavar="NAME [KEY=VALUE ...]")
     parser.add_argument("--variants", metavar="FILE", help="one variant a line: NAME KEY=VALUE ...")
     parser.add_argument("--json", type=Path, help="write every run's figures per variant here")
+    parser.add_argument("--from", dest="stage", choices=tuple(RESUMABLE)[::-1], default="tracker")
+    parser.add_argument("--only", help="scenarios to read, comma-separated (e.g. urban,crossing)")
+    parser.add_argument("--jobs", type=int, default=1, help="runs scored at once, in forked workers")
     args = parser.parse_args(argv)
-    sets: dict[str, list[LoadedRun]] = {}
+    only = set(args.only.split(",")) if args.only else None
+    labels: list[str] = []
+    _RUNS.clear()
     start = time.monotonic()
     for spec in args.runs:
         label, _, folder = spec.rpartition("=")
         paths = sorted(Path(folder).glob("*_run.mcap"))
+        paths = [p for p in paths if only is None or p.name.rsplit("-s", 1)[0] in only]
         if not paths:
-            parser.error(f"{folder}: no *_run.mcap")
-        sets[label or Path(folder).name] = [load_run(p) for p in paths]
-    print(f"read {sum(map(len, sets.values()))} runs in {time.monotonic() - start:.0f} s", flush=True)
+            parser.error(f"{folder}: no *_run.mcap" + (f" of {args.only}" if only else ""))
+        for path in paths:
+            _RUNS.append(load_run(path, args.stage))
+            labels.append(label or Path(folder).name)
+    print(f"read {len(_RUNS)} runs in {time.monotonic() - start:.0f} s", flush=True)
+    pool = multiprocessing.get_context("fork").Pool(args.jobs) if args.jobs > 1 else None
     out: dict[str, Any] = {}
     for name, extra in read_variants(args):
         start = time.monotonic()
-        results = {label: {r.name: score(r, args.set + extra) for r in runs} for label, runs in sets.items()}
+        tasks = [(i, args.set + extra) for i in range(len(_RUNS))]
+        rows = pool.map(_score_one, tasks) if pool is not None else [_score_one(t) for t in tasks]
+        results: dict[str, dict[str, dict[str, Any]]] = {}
+        for label, run, row in zip(labels, _RUNS, rows, strict=True):
+            results.setdefault(label, {})[run.name] = row
         print(f"{line(name, results)} ({time.monotonic() - start:.0f} s)", flush=True)
         out[name] = {"sets": extra, "runs": results}
+    if pool is not None:
+        pool.close()
     if args.json:
         args.json.write_text(json.dumps(out, indent=1))
     return 0

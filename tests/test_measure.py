@@ -100,3 +100,18 @@ def test_a_sweep_gives_the_figures_evaluate_gives_the_restarted_run(
     assert base["tp"] > late["tp"]  # a car is called moving by frame 16 only when tracks may be labelled young
     printed = capsys.readouterr().out.splitlines()
     assert printed[1].startswith("base") and f"held {base['tp']}/{base['fp']}/{base['fn']}" in printed[1]
+
+    # from the mapper: the clusters remade from the points, in two forked workers, and scored too
+    coarse = ["voxel.min_cluster_voxels=60"]
+    argv = ["--runs", f"held={runs}", "--from", "voxel_mapper", "--jobs", "2", "--json", str(out)]
+    assert sweep.main([*argv, "--variant", "base", "--variant", "coarse", *coarse]) == 0
+    swept = json.loads(out.read_text())
+    for name, sets in (("base", []), ("coarse", coarse)):
+        restarted = tmp_path / f"{name}_mapped.mcap"
+        process_file(runs / "urban-s7_run.mcap", restarted, with_frames=False, resume_from="voxel_mapper", sets=sets)
+        result = evaluate_recording(restarted)
+        got = swept[name]["runs"]["held"]["urban-s7"]
+        assert (got["tp"], got["fp"], got["fn"]) == tuple(result["moving"][k] for k in ("tp", "fp", "fn"))
+        assert got["one_cluster_pct"] == pytest.approx(result["segmentation"]["one_cluster_pct"])
+    one = {name: swept[name]["runs"]["held"]["urban-s7"]["one_cluster_pct"] for name in ("base", "coarse")}
+    assert one["base"] > one["coarse"]  # clusters under 60 voxels dropped: the far objects have none

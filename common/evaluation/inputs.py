@@ -118,7 +118,8 @@ def calibration_of(info: dict[str, Any]) -> Calibration | None:
         return None
 
 
-def _cluster_boxes(msg: Clusters) -> FrameClusters:
+def cluster_boxes(msg: Clusters) -> FrameClusters:
+    """What segmentation scores of a Clusters message (also for clusters remade in memory, scripts/sweep_tracker.py)."""
     boxes = [
         ClusterBox(np.array(c.centroid, dtype=np.float64), np.array(c.bbox_min), np.array(c.bbox_max))
         for c in msg.clusters
@@ -154,7 +155,7 @@ class _Reader:
         elif isinstance(msg, Obstacles):
             run.obstacles[fid] = msg
         elif isinstance(msg, Clusters):
-            run.clusters[fid] = _cluster_boxes(msg)
+            run.clusters[fid] = cluster_boxes(msg)
         elif isinstance(msg, Disparity):
             if run.calib is None:
                 run.calib = msg.calib
