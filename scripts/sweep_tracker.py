@@ -157,17 +157,19 @@ def main(argv: list[str] | None = None) -> int:
     print(f"read {len(_RUNS)} runs in {time.monotonic() - start:.0f} s", flush=True)
     pool = multiprocessing.get_context("fork").Pool(args.jobs) if args.jobs > 1 else None
     out: dict[str, Any] = {}
-    for name, extra in read_variants(args):
-        start = time.monotonic()
-        tasks = [(i, args.set + extra) for i in range(len(_RUNS))]
-        rows = pool.map(_score_one, tasks) if pool is not None else [_score_one(t) for t in tasks]
-        results: dict[str, dict[str, dict[str, Any]]] = {}
-        for label, run, row in zip(labels, _RUNS, rows, strict=True):
-            results.setdefault(label, {})[run.name] = row
-        print(f"{line(name, results)} ({time.monotonic() - start:.0f} s)", flush=True)
-        out[name] = {"sets": extra, "runs": results}
-    if pool is not None:
-        pool.close()
+    try:
+        for name, extra in read_variants(args):
+            start = time.monotonic()
+            tasks = [(i, args.set + extra) for i in range(len(_RUNS))]
+            rows = pool.map(_score_one, tasks) if pool is not None else [_score_one(t) for t in tasks]
+            results: dict[str, dict[str, dict[str, Any]]] = {}
+            for label, run, row in zip(labels, _RUNS, rows, strict=True):
+                results.setdefault(label, {})[run.name] = row
+            print(f"{line(name, results)} ({time.monotonic() - start:.0f} s)", flush=True)
+            out[name] = {"sets": extra, "runs": results}
+    finally:
+        if pool is not None:
+            pool.terminate()
     if args.json:
         args.json.write_text(json.dumps(out, indent=1))
     return 0
