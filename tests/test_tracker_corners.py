@@ -90,7 +90,7 @@ def test_a_clusters_corners_outvote_a_standing_neighbours_merged_into_it() -> No
     velocity[:6, 0] = 1.5
     history = _history(HISTORY, np.arange(len(start)), start, velocity)
     stacked = footprint([walker_bin, post])
-    found = corner_velocity(history, stacked.voxels, stacked.counts, np.arange(2), 2, EDGE, min_samples=6)
+    found = corner_velocity(history, stacked.voxels, stacked.counts, np.arange(2), 2, EDGE, 6, eye=np.zeros(2))
     assert found.count.tolist() == [8, 3]
     np.testing.assert_allclose(found.velocity[0], [1.5, 0.0], atol=1e-6)
     np.testing.assert_allclose(found.velocity[1], [0.0, 0.0], atol=1e-6)

@@ -176,7 +176,7 @@ def _fit_lines(xy: NDArray, t: NDArray, n: NDArray, rows: NDArray) -> tuple[NDAr
 
 def corner_velocity(
     history: CornerHistory, voxels: NDArray, counts: NDArray, slot: NDArray, pieces: int, edge: float, min_samples: int,
-    eye: NDArray | None = None, across_std_m: float = 0.0,
+    eye: NDArray, across_std_m: float = 0.0,
 ) -> CornerVelocity:
     """Per piece (``0 .. pieces - 1``): its corners (those in its voxels this frame) and their median velocity.
 
@@ -188,7 +188,7 @@ def corner_velocity(
     if pieces == 0 or len(owner) == 0 or len(history.ids) == 0:
         none = np.full(pieces, np.inf)
         return CornerVelocity(np.zeros((pieces, 2)), none, np.zeros(pieces, dtype=np.int64), np.zeros(pieces), none)
-    eye = np.zeros(2) if eye is None else np.asarray(eye, dtype=np.float64)
+    eye = np.asarray(eye, dtype=np.float64)
     velocity, spread, stereo, count, across, across_spread, across_factor = _piece_velocities(
         np.ascontiguousarray(voxels), owner, history.now, history.n, history.missed, max(min_samples, 2), edge,
         history.xy, history.t, history.std, pieces, eye,
