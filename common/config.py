@@ -202,6 +202,7 @@ class TrackerConfig:
     moving_off_mps: float = 0.4
     moving_sigma_k: float = 1.5  # the label follows speed - k * speed std (minus the box-growth slide)
     moving_min_frames: int = 4  # frames of track before it may be called moving
+    moving_max_floor_m: float = 1.0  # a cluster whose lowest voxel is higher above the road never turns moving; 0: off
     process_noise: float = 1.0  # horizontal acceleration std (m/s^2)
     process_noise_z: float = 0.1  # vertical acceleration std (m/s^2): obstacles stay on the road
     upright_process_noise: float = 2.0  # ... horizontal, of an upright track: people start and stop (0 = as others)

@@ -95,6 +95,8 @@ class Cluster:
     centroid: NDArray = array_field("float64", (3,))
     density: float  # voxels / bounding-box volume in voxels
     volume: float  # m^3 occupied by the cluster's voxels
+    # height above the road of its lowest voxel's centroid (m); 0 in recordings made before it
+    floor_m: float = 0.0
 
 
 @dataclass(kw_only=True)

@@ -148,7 +148,8 @@ def main(argv: list[str] | None = None) -> int:
     for spec in args.runs:
         label, _, folder = spec.rpartition("=")
         paths = sorted(Path(folder).glob("*_run.mcap"))
-        paths = [p for p in paths if only is None or p.name.rsplit("-s", 1)[0] in only]
+        # a synthetic run is SCENARIO-sSEED_run.mcap, a real one NAME_run.mcap (kitti-tracking-0001)
+        paths = [p for p in paths if only is None or p.name.removesuffix("_run.mcap").rsplit("-s", 1)[0] in only]
         if not paths:
             parser.error(f"{folder}: no *_run.mcap" + (f" of {args.only}" if only else ""))
         for path in paths:

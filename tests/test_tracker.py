@@ -398,6 +398,28 @@ def test_moving_label_needs_a_trustworthy_speed_and_comes_within_five_frames() -
     assert any(labels[:8])
 
 
+def labels_of_a_walk(floor_m: list[float], **overrides: object) -> list[bool]:
+    """A 1.5 m/s walker's labels, frame by frame, its cluster's floor given per frame."""
+    rng = np.random.default_rng(2)
+    tracker = new_tracker(**overrides)
+    labels = []
+    for k, floor in enumerate(floor_m):
+        centre = np.array([8.0, 2.0, 0.9]) + np.array([0.0, 1.5, 0.0]) * k * 0.1 + rng.normal(scale=0.05, size=3)
+        piece = dataclasses.replace(cluster(0, centre, size=(0.6, 0.6, 1.8)), floor_m=floor)
+        labels.append(step(tracker, k, [piece]).obstacles[0].moving)
+    return labels
+
+
+def test_what_is_held_up_off_the_road_never_turns_moving_but_a_mover_keeps_its_label() -> None:
+    grounded = labels_of_a_walk([0.3] * 12, moving_max_floor_m=1.0)
+    assert any(grounded[:8])
+    assert labels_of_a_walk([1.4] * 12, moving_max_floor_m=0.0) == grounded  # the rule off: the floor is not read
+    assert not any(labels_of_a_walk([1.4] * 12, moving_max_floor_m=1.0))  # a crown's piece sliding along
+    first = grounded.index(True)
+    # once moving, legs hidden behind a parked car's bonnet take nothing away
+    assert labels_of_a_walk([0.3] * (first + 1) + [1.4] * (11 - first), moving_max_floor_m=1.0) == grounded
+
+
 def test_static_object_seen_from_moving_vehicle_never_moving() -> None:
     rng = np.random.default_rng(4)
     tracker = new_tracker()

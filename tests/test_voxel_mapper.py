@@ -311,6 +311,18 @@ def test_overhanging_box_is_one_cluster_spanning_its_height() -> None:
     assert c.bbox_max[2] == pytest.approx(2.5, abs=0.25)
 
 
+def test_a_clusters_floor_is_its_lowest_voxel_above_the_road_even_on_a_slope() -> None:
+    slope = road(grade=0.06)
+    z0 = 0.06 * 15.0
+    standing = box((15, -1, z0), (17, 1, z0 + 1.5), BLUE)
+    hanging = box((15, 3, z0 + 1.6), (17, 5, z0 + 2.6), GREEN)  # a sign held 1.6 m over the road
+    out = mapper(ground="terrain").process(cloud(slope, standing, hanging), ego())
+    floors = sorted((c.centroid[1], c.floor_m) for c in out.clusters)
+    assert len(floors) == 2
+    assert floors[0][1] == pytest.approx(0.3, abs=0.15)  # the first voxel layer above the clearance
+    assert floors[1][1] == pytest.approx(1.7, abs=0.2)  # a voxel's centre is half an edge above its face
+
+
 def test_clusters_round_trip_through_the_codec() -> None:
     out = mapper().process(cloud(road(), box((6, -1, 0), (8, 1, 1.5), RED), frame_id=7), ego(frame_id=7))
     back = decode(encode(out), Clusters)

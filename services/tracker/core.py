@@ -173,7 +173,9 @@ class Tracker:
             weights=Weights(t.w_position, t.w_color, t.w_size, t.w_density, t.gate, t.position_gate),
             accept_frames=t.accept_frames,
             ghost_frames=t.ghost_frames,
-            hysteresis=Hysteresis(t.moving_on_mps, t.moving_off_mps, t.moving_sigma_k, t.moving_min_frames),
+            hysteresis=Hysteresis(
+                t.moving_on_mps, t.moving_off_mps, t.moving_sigma_k, t.moving_min_frames, t.moving_max_floor_m
+            ),
             accel_std=(t.process_noise, t.process_noise, t.process_noise_z),
             measurement_std=t.measurement_noise,
             range_noise_per_m2=t.range_noise_per_m2,
@@ -424,6 +426,7 @@ class Tracker:
         now, slow = obs.across, t.across_slow[rows]
         t.across[rows] = now
         t.depth[rows] = obs.depth
+        t.floor[rows] = obs.floor
         t.across_slow[rows] = np.where(
             np.isnan(slow), now, np.where(np.isnan(now), slow, slow + SLIDE_SMOOTHING * (now - slow))
         )

@@ -97,6 +97,7 @@ def merge(pieces: list[Cluster], edge: float) -> Cluster:
         centroid=centroid,
         density=min(float(counts.sum()) / cells, 1.0),
         volume=float(sum(p.volume for p in pieces)),
+        floor_m=min(p.floor_m for p in pieces),
     )
 
 

@@ -98,9 +98,13 @@ class MotionLabeller:
         upright_k = k if self.upright_sigma_k is None else self.upright_sigma_k
         sigma_k = np.where(upright, upright_k, k)
         moving = label(t.moving, speed, sigma, slide, t.age, self.hysteresis, confirm, sigma_k)
-        if self.corners.samples <= 0:
-            return moving
-        return (moving & ~self.held_by_corners(t)) | self.by_corners(t)
+        if self.corners.samples > 0:
+            moving = (moving & ~self.held_by_corners(t)) | self.by_corners(t)
+        if self.hysteresis.max_floor_m > 0.0:
+            # what moves on a road stands on it: a cluster held up in the air (a tree's crown, a sign)
+            # does not turn moving, however its pieces swap from frame to frame
+            moving &= t.moving | (t.floor <= self.hysteresis.max_floor_m)
+        return moving
 
     def _corner_speed(self, t: TrackTable) -> tuple[NDArray, NDArray, NDArray]:
         """The corners' median speed on each track less and plus ``sigma_k`` of their sigmas, and

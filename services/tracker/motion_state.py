@@ -36,6 +36,7 @@ class Hysteresis:
     off: float
     sigma_k: float
     min_frames: int
+    max_floor_m: float = 0.0  # a track whose cluster's lowest voxel is higher above the road never turns moving; 0: off
 
 
 def speed_and_sigma(velocity: NDArray, velocity_cov: NDArray) -> tuple[NDArray, NDArray]:

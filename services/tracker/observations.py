@@ -34,6 +34,7 @@ class Observations:
     hsl: NDArray
     density: NDArray  # (m,)
     volume: NDArray
+    floor: NDArray  # (m,) height of its lowest voxel above the road (m)
 
     @cached_property
     def extent(self) -> NDArray:
@@ -72,7 +73,7 @@ def observe(
     colour = np.concatenate([a for c in clusters for a in (c.color_mean_rgb, c.color_mean_hsl)] or [np.zeros(0)])
     geometry = geometry.astype(np.float64).reshape(n, 9)
     colour = colour.astype(np.float64).reshape(n, 6)
-    scalars = np.array([(c.density, c.volume) for c in clusters], dtype=np.float64).reshape(n, 2)
+    scalars = np.array([(c.density, c.volume, c.floor_m) for c in clusters], dtype=np.float64).reshape(n, 3)
     finite = np.isfinite(geometry).all(axis=1) & np.isfinite(colour).all(axis=1) & np.isfinite(scalars).all(axis=1)
     keep = np.flatnonzero(finite)
     kept = [clusters[i] for i in keep.tolist()]
@@ -94,5 +95,6 @@ def observe(
         hsl=colour[keep, 3:6],
         density=scalars[keep, 0],
         volume=scalars[keep, 1],
+        floor=scalars[keep, 2],
     )
     return obs, stacked, n - int(keep.shape[0])

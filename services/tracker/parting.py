@@ -138,6 +138,7 @@ def _piece(cluster: Cluster, voxels: NDArray, points: NDArray, colour: tuple[NDA
         centroid=np.median(centres, axis=0),
         density=float(len(voxels)) / float(np.prod(cells.astype(np.float64))),
         volume=len(voxels) * edge**3,
+        floor_m=cluster.floor_m + float(lo[2] - cluster.bbox_min[2]),  # the road as level under the cluster
     )
 
 

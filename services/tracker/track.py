@@ -52,6 +52,7 @@ class TrackTable:
     depth: NDArray = _empty()  # how deep its last cluster's points' middle half lies along the line of sight
     density: NDArray = _empty()
     volume: NDArray = _empty()
+    floor: NDArray = _empty()  # its last cluster's lowest voxel above the road (m)
     centroid: NDArray = _empty(3)  # last cluster's
     bbox_min: NDArray = _empty(3)
     bbox_max: NDArray = _empty(3)
@@ -115,6 +116,7 @@ def born(ids: NDArray, obs: Observations, p: NDArray, clock: float, parted: NDAr
         depth=obs.depth.copy(),
         density=obs.density.copy(),
         volume=obs.volume.copy(),
+        floor=obs.floor.copy(),
         centroid=obs.centroid.copy(),
         bbox_min=obs.bbox_min.copy(),
         bbox_max=obs.bbox_max.copy(),

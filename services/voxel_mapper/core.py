@@ -140,7 +140,7 @@ class VoxelMapper:
                                           self.map.edge)
         corners = transform(ego.pose, np.asarray(cloud.keypoints, dtype=np.float64))
         on = self._corners_on_clusters(np.asarray(cloud.keypoint_ids), corners, labels)
-        return Clusters(frame_id=cloud.frame_id, stamp_ns=cloud.stamp_ns, clusters=describe(self.map, labels),
+        return Clusters(frame_id=cloud.frame_id, stamp_ns=cloud.stamp_ns, clusters=describe(self.map, labels, height),
                         voxel_edge=self.map.edge, world_epoch=ego.world_epoch, ego_pose=np.array(ego.pose),
                         voxel_count=self.map.n, view=view_limits(cloud), keypoint_ids=cloud.keypoint_ids[on],
                         keypoints=corners[on], keypoint_std=cloud.keypoint_std[on])

@@ -20,8 +20,9 @@ from common.messages import Cluster
 from services.voxel_mapper.voxel_map import XYZ, VoxelMap, colour_stats
 
 
-def describe(vmap: VoxelMap, labels: npt.NDArray[np.int32]) -> list[Cluster]:
-    """One Cluster per distinct label >= 0, ids numbered 0.. in order of decreasing size."""
+def describe(vmap: VoxelMap, labels: npt.NDArray[np.int32], height: npt.NDArray[np.float64]) -> list[Cluster]:
+    """One Cluster per distinct label >= 0, ids numbered 0.. in order of decreasing size; ``height``
+    is each voxel's above the road, whose least over a cluster is its floor."""
     slots = np.flatnonzero(labels >= 0)
     if slots.size == 0:
         return []
@@ -45,6 +46,7 @@ def describe(vmap: VoxelMap, labels: npt.NDArray[np.int32]) -> list[Cluster]:
     cells = np.maximum.reduceat(coords, starts, axis=0) - np.minimum.reduceat(coords, starts, axis=0) + 1
     dens = counts / np.prod(cells.astype(np.float64), axis=1)
     volume = counts * vmap.edge**3
+    floor = np.minimum.reduceat(height[slots], starts)
 
     out = []
     for rank, c in enumerate(np.argsort(-counts, kind="stable")):
@@ -57,6 +59,6 @@ def describe(vmap: VoxelMap, labels: npt.NDArray[np.int32]) -> list[Cluster]:
             color_mean_rgb=rgb_mean[c], color_var_rgb=rgb_var[c],
             color_mean_hsl=hsl_mean[c], color_var_hsl=hsl_var[c],
             bbox_min=box_lo[c], bbox_max=box_hi[c], centroid=centre[c],
-            density=float(dens[c]), volume=float(volume[c]),
+            density=float(dens[c]), volume=float(volume[c]), floor_m=float(floor[c]),
         ))
     return out
