@@ -232,6 +232,7 @@ class TrackerConfig:
     fragment_standing_m: float = 0.3  # ... two reaching this near their floor (m) only if footprints touch; < 0: off
     upright_m: float = 1.2  # a cluster this tall (m) and at most upright_thin_m across in x or y is a person or a
     upright_thin_m: float = 1.3  # pole: two standing are never gathered, a narrow one gets no extent noise; 0: off
+    upright_alone_mps: float = 3.0  # ... nor one such with any standing piece, by a track slower than this; 0: off
     upright_sigma_k: float = 0.75  # ... and an upright track turns moving at this many speed sigmas, not moving_sigma_k
     upright_near_only_m: float = 4.0  # ... and if no longer (m, x and y), its near face alone confirms it; 0: off
     reshape_m: float = 3.0  # box grown or shrunk by more (m, x or y): a not-yet-moving track's speed window restarts

@@ -20,7 +20,7 @@ from services.tracker import anchor as anchor_module
 from services.tracker.against import REPO, compare
 from services.tracker.anchor import SELECT_MAX, _kth, _order, anchors
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
-from services.tracker.fragments import Sight, Standing, components, footprint, in_contact, merge, near_boxes
+from services.tracker.fragments import Sight, Standing, components, footprint, gather, in_contact, merge, near_boxes
 from services.tracker.left_behind import LeftBehind
 from services.tracker.measurement import cut_covariance
 from services.tracker.motion_window import speed_bounds
@@ -1034,6 +1034,44 @@ def test_a_walker_parting_inside_the_box_of_a_facade_and_a_pole_gets_a_track(sta
         assert w.moving and abs(w.velocity[0] + 1.5) < 0.4, w.velocity
     else:
         assert walkers == [] and len(tracked) == 1  # gathered back into the blob, frame after frame
+
+
+@pytest.mark.parametrize("alone_mps", [Config().tracker.upright_alone_mps, 0.0])
+def test_a_walker_brushing_along_a_low_wall_is_not_gathered_into_its_track(alone_mps: float) -> None:
+    # synthetic urban: walkers pass bins 0.1 m apart on the sidewalk; here a wall 1 m high, so that
+    # he stays beside it. Once he is a cluster of his own, his footprint still touches the wall's
+    # and he lies in the box of the wall's track, which took them both while they were one cluster.
+    tracker = new_tracker(upright_alone_mps=alone_mps)
+    wall = box_voxels((20.0, -5.0, 0.0), (26.0, -4.5, 1.0))
+
+    def walker(k: int) -> np.ndarray:
+        x = 25.5 - 0.15 * k  # 1.5 m/s toward the vehicle
+        return box_voxels((x, -5.5, 0.0), (x + 0.5, -5.0, 1.75))
+
+    for k in range(6):
+        out = step(tracker, k, [of_voxels(np.vstack([wall, walker(k)]), 0, (0.5, 0.5, 0.5))])
+    for k in range(6, 22):
+        out = step(tracker, k, [of_voxels(wall, 0, (0.5, 0.5, 0.5)), of_voxels(walker(k), 1, (0.5, 0.2, 0.2))])
+    tracked = [o for o in out.obstacles if o.state == "tracked"]
+    walkers = [o for o in tracked if abs(o.centroid[1] + 5.25) < 0.3 and o.volume < 1.0]
+    if alone_mps > 0.0:
+        (w,) = walkers
+        assert w.moving and abs(w.velocity[0] + 1.5) < 0.4, w.velocity
+    else:
+        assert walkers == [] and len(tracked) == 1  # gathered into the wall's track, frame after frame
+
+
+def test_an_upright_piece_stays_apart_in_a_slow_tracks_box_and_is_gathered_in_a_fast_ones() -> None:
+    # a vehicle's track is left out of the rule: a car's tall piece can be as thin as a walker
+    low = of_voxels(box_voxels((20.0, -5.0, 0.0), (22.0, -4.5, 1.0)), 0)
+    upright = of_voxels(box_voxels((21.0, -5.5, 0.0), (21.5, -5.0, 1.75)), 1)
+    cfg = Config().tracker
+    rule = Standing(cfg.fragment_standing_m, cfg.upright_m, cfg.upright_thin_m, alone=True)
+    lo, hi = np.array([[19.5, -6.0, 0.0]]), np.array([[22.5, -4.0, 2.0]])
+    sight = Sight(np.zeros(3), EDGE)
+    assert len(gather([low, upright], lo, hi, 0.25, EDGE, 0.1, rule, sight, np.array([True]))) == 2
+    assert len(gather([low, upright], lo, hi, 0.25, EDGE, 0.1, rule, sight, np.array([False]))) == 1
+    assert len(gather([low, upright], lo, hi, 0.25, EDGE, 0.1, dataclasses.replace(rule, alone=False), sight)) == 1
 
 
 @pytest.mark.parametrize("thin_m", [Config().tracker.upright_thin_m, 0.0])
