@@ -430,11 +430,11 @@ class Tracker:
         now, slow = obs.across, t.across_slow[rows]
         t.across[rows] = now
         t.depth[rows] = obs.depth
-        t.floor[rows] = obs.floor
         t.across_slow[rows] = np.where(
             np.isnan(slow), now, np.where(np.isnan(now), slow, slow + SLIDE_SMOOTHING * (now - slow))
         )
         t.density[rows] += a * (obs.density - t.density[rows])
+        t.floor[rows] += a * (obs.floor - t.floor[rows])  # a crown's cluster dipping to a hedge for a frame stays up
 
     def _swallowed(self, rows: NDArray, obs: Observations) -> NDArray:
         """Which tracked rows' clusters outgrow their smoothed extent by over ``merge_growth_m`` (x or y)."""

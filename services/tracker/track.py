@@ -52,7 +52,7 @@ class TrackTable:
     depth: NDArray = _empty()  # how deep its last cluster's points' middle half lies along the line of sight
     density: NDArray = _empty()
     volume: NDArray = _empty()
-    floor: NDArray = _empty()  # its last cluster's lowest voxel above the road (m)
+    floor: NDArray = _empty()  # its clusters' lowest voxel above the road (m), smoothed as its size
     centroid: NDArray = _empty(3)  # last cluster's
     bbox_min: NDArray = _empty(3)
     bbox_max: NDArray = _empty(3)
