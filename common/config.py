@@ -201,7 +201,7 @@ class TrackerConfig:
     moving_on_mps: float = 0.5  # evaluation: moving >= 1.0 m/s, stationary < 0.3 m/s (0.7 until 24, 0.55 until 44)
     moving_off_mps: float = 0.4
     moving_sigma_k: float = 1.5  # the label follows speed - k * speed std (minus the box-growth slide)
-    moving_min_frames: int = 4  # frames of track before it may be called moving
+    moving_min_frames: int = 3  # frames of track before it may be called moving (4 until session 45)
     moving_max_floor_m: float = 1.0  # a cluster whose lowest voxel is higher above the road never turns moving; 0: off
     process_noise: float = 1.0  # horizontal acceleration std (m/s^2)
     process_noise_z: float = 0.1  # vertical acceleration std (m/s^2): obstacles stay on the road
