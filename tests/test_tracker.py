@@ -1066,12 +1066,12 @@ def test_an_upright_piece_stays_apart_in_a_slow_tracks_box_and_is_gathered_in_a_
     low = of_voxels(box_voxels((20.0, -5.0, 0.0), (22.0, -4.5, 1.0)), 0)
     upright = of_voxels(box_voxels((21.0, -5.5, 0.0), (21.5, -5.0, 1.75)), 1)
     cfg = Config().tracker
-    rule = Standing(cfg.fragment_standing_m, cfg.upright_m, cfg.upright_thin_m, alone=True)
+    rule = Standing(cfg.fragment_standing_m, cfg.upright_m, cfg.upright_thin_m, alone_mps=3.0)
     lo, hi = np.array([[19.5, -6.0, 0.0]]), np.array([[22.5, -4.0, 2.0]])
     sight = Sight(np.zeros(3), EDGE)
-    assert len(gather([low, upright], lo, hi, 0.25, EDGE, 0.1, rule, sight, np.array([True]))) == 2
-    assert len(gather([low, upright], lo, hi, 0.25, EDGE, 0.1, rule, sight, np.array([False]))) == 1
-    assert len(gather([low, upright], lo, hi, 0.25, EDGE, 0.1, dataclasses.replace(rule, alone=False), sight)) == 1
+    assert len(gather([low, upright], lo, hi, 0.25, EDGE, 0.1, rule, sight, np.array([0.0]))) == 2  # a bin's track
+    assert len(gather([low, upright], lo, hi, 0.25, EDGE, 0.1, rule, sight, np.array([9.0]))) == 1  # a car's
+    assert len(gather([low, upright], lo, hi, 0.25, EDGE, 0.1, dataclasses.replace(rule, alone_mps=0.0), sight)) == 1
 
 
 @pytest.mark.parametrize("thin_m", [Config().tracker.upright_thin_m, 0.0])

@@ -116,7 +116,6 @@ class Tracker:
         velocity_faces: int = 0,
         narrow_by_points: bool = False,
         corners: CornerRule = NO_CORNERS,
-        alone_max_mps: float = float("inf"),
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -136,7 +135,6 @@ class Tracker:
         self._parts: set[int] = set()  # this frame's parted pieces, by identity (_part)
         self.fragment_gap = fragment_gap
         self.standing = standing
-        self.alone_max_mps = alone_max_mps  # a track slower gathers no upright piece with another (fragments.py)
         self.accept_misses = accept_misses
         self.reshape_m = reshape_m
         self.revive_restart_m = revive_restart_m
@@ -189,7 +187,7 @@ class Tracker:
             jump_nis=t.jump_nis,
             fragment_margin=t.fragment_margin,
             fragment_gap=t.fragment_gap,
-            standing=Standing(t.fragment_standing_m, t.upright_m, t.upright_thin_m, t.upright_alone_mps > 0.0),
+            standing=Standing(t.fragment_standing_m, t.upright_m, t.upright_thin_m, t.upright_alone_mps),
             accept_misses=t.accept_misses,
             reshape_m=t.reshape_m,
             narrow_across_m=t.narrow_across_m,
@@ -215,7 +213,6 @@ class Tracker:
             ),
             velocity_faces=t.velocity_faces,
             narrow_by_points=t.narrow_by_points,
-            alone_max_mps=t.upright_alone_mps,
             corners=CornerRule(
                 t.corner_samples,
                 t.corner_min_count,
@@ -298,8 +295,8 @@ class Tracker:
         shift = (t.x[known, 0:3] + t.offset[known]) - t.centroid[known]
         lo, hi = t.bbox_min[known] + shift, t.bbox_max[known] + shift
         margin, edge = self.fragment_margin, clusters.voxel_edge
-        slow = np.hypot(t.x[known, 3], t.x[known, 4]) < self.alone_max_mps
-        gathered = gather(clusters.clusters, lo, hi, margin, edge, self.fragment_gap, self.standing, sight, slow)
+        speed = np.hypot(t.x[known, 3], t.x[known, 4])
+        gathered = gather(clusters.clusters, lo, hi, margin, edge, self.fragment_gap, self.standing, sight, speed)
         return self._part(gathered, edge, pose, clusters.view)
 
     def _part(self, clusters: list[Cluster], edge: float, pose: NDArray, view: NDArray) -> list[Cluster]:

@@ -43,7 +43,7 @@ never gathered, whatever touches. A car's pieces are wider, and a walker's legs 
 not each that tall (docs/results/tracking.md, "Session 20").
 
 Nor is such a piece gathered with any other piece standing beside it into a slow track's box
-(``Standing.alone``): a walker passing a bin 0.1 m from it on the sidewalk is a cluster of his
+(``Standing.alone_mps``): a walker passing a bin 0.1 m from it on the sidewalk is a cluster of his
 own, but the bin's track took him in, frame after frame, and reported the pair standing between
 them (synthetic urban-s9, walker 50 and bin 24). A vehicle's track is left out of it (faster than
 ``tracker.upright_alone_mps``): a car's tall piece can be as thin across the line of sight, and
@@ -161,7 +161,7 @@ class Standing:
     floor_m: float = -1.0  # a box reaching this near the group's lowest stands on its floor; < 0: off
     upright_m: float = 0.0  # a box this tall (m) ...
     thin_m: float = 0.0  # ... and this narrow in x or y (m) is a whole person or pole; 0: off
-    alone: bool = False  # such a whole piece links to no other standing piece, upright or not
+    alone_mps: float = 0.0  # ... nor links to any standing piece in the box of a track slower than this; 0: off
 
     def upright(self, extent: NDArray) -> NDArray:
         """Which boxes of these extents (n, 3) are a person's or a pole's."""
@@ -226,7 +226,7 @@ def standing_links(pieces: list[Cluster], near: NDArray, standing: Standing, sig
     both = near & on_floor[:, None] & on_floor[None, :]
     links = near & (~both | in_contact([footprint(v) for v in voxels], both))
     whole = standing.whole(pieces, on_floor, sight)
-    apart = (whole[:, None] | whole[None, :]) & both if standing.alone else whole[:, None] & whole[None, :]
+    apart = (whole[:, None] | whole[None, :]) & both if standing.alone_mps > 0.0 else whole[:, None] & whole[None, :]
     return links & ~(apart & ~np.eye(len(pieces), dtype=bool))
 
 
@@ -244,10 +244,11 @@ def gather(
     gap: float = -1.0,
     standing: Standing = APART_BY_BOX,
     sight: Sight | None = None,
-    slow: NDArray | None = None,
+    speed: NDArray | None = None,
 ) -> list[Cluster]:
-    """The clusters with each track's exclusive pieces merged; order otherwise kept. ``slow`` says
-    which tracks' boxes take ``standing.alone`` as it is (None: every one's); the others' leave it off."""
+    """The clusters with each track's exclusive pieces merged; order otherwise kept. ``speed`` is
+    each track's (m/s): only a slower one's box than ``standing.alone_mps`` keeps an upright piece
+    alone (None: every one's)."""
     if len(clusters) < 2 or len(box_min) == 0:
         return clusters
     centroids = np.array([c.centroid for c in clusters], dtype=np.float64)
@@ -259,9 +260,9 @@ def gather(
         lo = np.array([c.bbox_min for c in clusters], dtype=np.float64)
         hi = np.array([c.bbox_max for c in clusters], dtype=np.float64)
         parted: list[NDArray] = []
-        fast = dataclasses.replace(standing, alone=False)
+        fast = dataclasses.replace(standing, alone_mps=0.0)
         for row, g in zip(rows, groups, strict=True):
-            rule = standing if slow is None or slow[row] else fast
+            rule = standing if speed is None or speed[row] < standing.alone_mps else fast
             links = standing_links([clusters[i] for i in g], near_boxes(lo[g], hi[g], gap), rule, sight)
             parted += [g[part] for part in components(links) if len(part) >= 2]
         groups = parted
