@@ -55,6 +55,11 @@ class LoadedRun:
     inputs: RunInputs
 
 
+def scenario(run: str) -> str:
+    """A run's scenario: SCENARIO-sSEED for a synthetic run, its whole name for a real one (kitti-tracking-0001)."""
+    return run.rsplit("-s", 1)[0]
+
+
 def load_run(path: Path, stage: str = "tracker") -> LoadedRun:
     reader = open_recording(path)
     seen: dict[int, list[Any]] = {}
@@ -114,7 +119,7 @@ def line(name: str, results: dict[str, dict[str, dict[str, Any]]]) -> str:
     for label, runs in results.items():
         scenarios: dict[str, list[dict[str, Any]]] = {}
         for run, row in runs.items():
-            scenarios.setdefault(run.rsplit("-s", 1)[0], []).append(row)
+            scenarios.setdefault(scenario(run), []).append(row)
         each = " ".join(f"{s} {pooled(r)}" for s, r in sorted(scenarios.items()))
         parts.append(f"{label} {pooled(list(runs.values()))} [{each}]")
     return f"{name:24s} " + " | ".join(parts)
@@ -148,8 +153,7 @@ def main(argv: list[str] | None = None) -> int:
     for spec in args.runs:
         label, _, folder = spec.rpartition("=")
         paths = sorted(Path(folder).glob("*_run.mcap"))
-        # a synthetic run is SCENARIO-sSEED_run.mcap, a real one NAME_run.mcap (kitti-tracking-0001)
-        paths = [p for p in paths if only is None or p.name.removesuffix("_run.mcap").rsplit("-s", 1)[0] in only]
+        paths = [p for p in paths if only is None or scenario(p.name.removesuffix("_run.mcap")) in only]
         if not paths:
             parser.error(f"{folder}: no *_run.mcap" + (f" of {args.only}" if only else ""))
         for path in paths:
