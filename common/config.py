@@ -93,12 +93,13 @@ class StereoConfig:
     subpixel_span_px: float = 1.5  # ... used only where the window's matched disparities span at most this
     subpixel_max_step_px: float = 0.75  # a larger correction keeps the matcher's value
     subpixel_max_disparity_px: float = 32.0  # ... and so does any pixel over this (0.15 px is < 0.5 % of its depth)
-    ramp_step_px: float = 0.0  # > 0: the cloud leaves out pixels between two plateaus this far apart (1.0 measured)
+    ramp_step_px: float = 1.0  # > 0: pixels between two plateaus this far apart moved or left out (ramps.py); 0: off
     ramp_reach_px: int = 4  # ... plateaus this many columns to either side (measured 2-5)
     ramp_width_px: int = 3  # ... each the mean of this many columns
     ramp_margin_px: float = 0.2  # ... and a pixel this near either plateau's disparity is that surface's own
-    ramp_flat_share: float = 0.15  # ... each plateau changing by at most this share of the step; 0: no test
-    ramp_snap_ratio: float = 0.0  # > 0: ramp pixels moved onto the plateau of nearer colour (this factor)
+    ramp_flat_share: float = 0.0  # ... each plateau changing by at most this share of the step (0.15 to drop); 0: off
+    ramp_snap_ratio: float = 0.3  # > 0: ramp pixels moved onto the plateau clearly nearer in colour (by this factor);
+    # 0: left out of the cloud. Session 46: 0.3 kept, 0.5 and leaving out measured (docs/results/voxel.md)
 
 
 @dataclass
