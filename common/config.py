@@ -163,7 +163,7 @@ class VoxelConfig:
     step_bridge_voxels: int = 4  # same, one layer up and away or down and nearer, seen from both parts (measured 0-8)
     points_range_m: float = 15.0  # beyond this range min_points_per_voxel falls with range squared (0 = fixed)
     min_points_far: int = 2  # ... but never below this
-    join_min_voxels: int = 8  # smallest parts joined into one object (0 = min_cluster_voxels; measured 4..20)
+    join_min_voxels: int = 6  # smallest parts joined into one object (0 = min_cluster_voxels; 8 until session 46)
     cut_tall_m: float = 2.8  # in a cluster this tall, a patch of columns ending below cut_low_m is cut off (0 = off)
     cut_low_m: float = 2.0  # measured 2.0..2.5 and 2.5..3.0 m tall: within 1 point on urban seeds 1-2
     cut_min_voxels: int = 12

@@ -22,11 +22,12 @@ look back from). ``voxel.step_bridge_voxels`` 4 (1 m): on synthetic urban, cross
 seeds 1-2 objects in one cluster rose by 0 to 3.6 points with moving TP and FP unchanged; 2 gained
 0.5 at most, and 8 cost crossing seed 2 five points of moving TP (docs/results/voxel.md).
 
-``min_voxels`` here (``voxel.join_min_voxels``, 8) is below the noise limit on purpose: a walker
+``min_voxels`` here (``voxel.join_min_voxels``, 6) is below the noise limit on purpose: a walker
 seen from the front is 15-30 voxels split by colour into coat and trousers of 6-15 each, and
 with the noise limit (20) gating the join too, both parts were aggregated into a facade or dropped
 in alternate frames (synthetic crossing, seed 7: objects in one cluster 55 -> 40 % when the limit
-went from 12 to 20; 62 % with parts joined from 8 voxels, docs/results/voxel.md).
+went from 12 to 20; 62 % with parts joined from 8 voxels, docs/results/voxel.md). 8 until session
+46: with ramp pixels snapped, 6 added true moving frames on all three sets of seeds.
 """
 
 from __future__ import annotations
