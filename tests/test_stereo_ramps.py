@@ -162,6 +162,7 @@ def test_snapping_matches_a_pixel_by_pixel_reading_of_the_rule() -> None:
     ramp, left, right = f._ramp(disparity)
     expected = disparity.copy()
     span = f.reach + f.width - 1
+
     def off(r: int, c: int, first: int) -> float:  # L1 colour distance to the run of columns from ``first``
         return float(np.abs(image[r, c].astype(np.float32) - image[r, first : first + f.width].mean(axis=0)).sum())
 
