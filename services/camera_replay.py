@@ -27,7 +27,7 @@ from typing import Any
 import msgpack
 import zenoh
 
-from common.bus import Publisher, declare_alive, open_session, subscribe, watch_alive
+from common.bus import Publisher, declare_alive, linger, open_session, subscribe, watch_alive
 from common.codec import decode, encode
 from common.config import Config
 from common.errors import BusError, ConfigError, DecodeError
@@ -260,6 +260,14 @@ class Replay:
                 self._done = max(self._done, item.msg.frame_id)
 
     def close(self) -> None:
+        """Leave the bus, but no sooner than ``bus.close_linger_s`` after the last frame went out.
+
+        A frame put as the replay is stopped is only queued; closing at once can take it from a
+        subscriber still busy with the one before (a recorder compressing): the fault test lost
+        camera frame 48, published 0.02 s after the stop, while its observer had it (session 47;
+        the stages linger the same way since session 17, docs/results/reliability.md).
+        """
+        linger(list(self.pubs.values()), self.cfg.bus.close_linger_s)
         for pub in self.pubs.values():
             pub.close()
         if self.reports is not None:

@@ -10,12 +10,14 @@ from collections.abc import Iterator
 
 import pytest
 import zenoh
-from conftest import Processes, free_port, stereovox_cmd, wait_for
+from conftest import REPO, Processes, free_port, stereovox_cmd, wait_for
 
 from common.bus import FifoSubscriber, LatestSubscriber, Publisher, declare_alive, linger, open_session, subscribe
-from common.config import BusConfig
+from common.config import BusConfig, Config
 from common.messages import EgoMotion, Health, key_for
+from common.recording import open_recording
 from services.bus_bench import measure
+from services.camera_replay import Replay
 from services.topics import summarise
 
 
@@ -58,6 +60,20 @@ def test_a_publisher_lingers_only_after_a_recent_put(pair: tuple[zenoh.Session, 
     waited = linger([quiet, busy], 0.5)
     assert 0.3 < waited <= 0.5 and time.monotonic() - started >= waited
     assert linger([quiet, busy], 0.5) == 0.0  # the last put is now half a second old
+
+
+@pytest.mark.timeout(60)
+def test_a_replay_stopped_after_a_frame_stays_for_it(pair: tuple[zenoh.Session, zenoh.Session, int]) -> None:
+    """The camera replay leaves the bus no sooner than ``bus.close_linger_s`` after its last frame,
+    as the stages do: a session closed at once can take a frame from a slow subscriber."""
+    router, _, _ = pair
+    cfg = Config()
+    cfg.replay.rate = 0.0
+    replay = Replay(cfg, router, open_recording(REPO / "recordings" / "urban.mcap"), threading.Event())
+    assert replay.run(loop=False, max_frames=1).frames == 1
+    started = time.monotonic()
+    replay.close()
+    assert 0.2 < time.monotonic() - started < cfg.bus.close_linger_s + 1.0
 
 
 @pytest.mark.timeout(60)
