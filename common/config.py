@@ -86,7 +86,10 @@ class StereoConfig:
     below_volume_m: float = 1.0  # keep points this far below volume.z_min: the road for the mapper
     disparity_offset_px: float = 0.0  # a rig's disparity bias, added before depth (KITTI: as odometry's)
     disparity_edge_px: float = 0.0  # plus this times ((u - cx) / fx)^2, towards the image sides
-    keypoints: int = 3000  # corners followed from frame to frame with their disparity (keypoints.py); 0 = off
+    keypoints: int = 8000  # corners followed from frame to frame with their disparity (keypoints.py); 0 = off
+    # ... at most one new one per square cell of this side: 4 puts 2.5 times the corners on a cluster's
+    # voxels as 8 did (3000 corners until session 48; docs/results/stereo.md, "Session 48")
+    keypoint_cell_px: int = 4
     keypoint_disparity_std_px: float = 0.3  # ... whose disparity is this sure (one sigma): their range's doubt
     subpixel_iterations: int = 3  # Lucas-Kanade steps re-estimating SGM's sub-pixel part; 0 = off
     subpixel_window: int = 11  # their Gaussian window (px, odd)
@@ -247,7 +250,7 @@ class TrackerConfig:
     coast_max_speed_mps: float = 5.0  # ... and no faster (a car's rear is upright too; 3 measured the same)
     coast_moving_frames: int = 2  # ... labelled moving, it coasts this long, merged or not (3 measured); 0: off
     view_margin_m: float = 0.5  # a cluster this near (m) the image's side edge: followed at its far end (1.0: alike)
-    corner_samples: int = 4  # a followed corner's velocity needs this many frames of it (3, 5, 6 measured); 0: off
+    corner_samples: int = 3  # a corner's velocity needs this many frames of it (4 until session 48; 5 measured); 0: off
     corner_min_count: int = 4  # a track's corners have an opinion when it holds this many (5 until session 43)
     corner_on_mps: float = 1.0  # ... and their median speed, less its doubt, above this turns it moving
     corner_sigma_k: float = 1.75  # ... that doubt taken this many times (2.0 until 44; 1.5: KITTI 1 false frame)

@@ -233,7 +233,10 @@ def test_blank_pair_gives_an_empty_cloud_and_then_recovers(value: int, noise: fl
     assert not core.last_degenerate and len(cloud.points) > 1000
 
 
-@pytest.mark.parametrize("setting", [{"lr_check": "sideways"}, {"mode": "fast"}, {"block_size": 4}, {"min_depth_m": 0}])
+@pytest.mark.parametrize(
+    "setting",
+    [{"lr_check": "sideways"}, {"mode": "fast"}, {"block_size": 4}, {"min_depth_m": 0}, {"keypoint_cell_px": 0}],
+)
 def test_bad_configuration_is_refused_at_construction(setting: dict[str, object]) -> None:
     with pytest.raises(ConfigError):
         _core(**setting)

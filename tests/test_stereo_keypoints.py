@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from test_stereo_depth import BASELINE, FX, WIDTH, _calib
+from test_stereo_depth import BASELINE, FX, WIDTH, _calib, _core
 from textures import blob_texture
 
 from services.stereo_depth.keypoints import KeypointParams, Keypoints, KeypointTracker
@@ -69,6 +69,19 @@ def test_new_corners_go_where_there_are_none_not_to_the_strongest() -> None:
     # and they spread over the whole wall: every quarter of the image holds a quarter or so
     quarters = np.histogram(first.uv[:, 0], bins=4, range=(0, WIDTH))[0]
     assert quarters.min() > 0.15 * len(first.uv)
+
+
+def test_smaller_cells_take_more_corners_and_the_stage_passes_its_setting_on() -> None:
+    texture = blob_texture(np.random.default_rng(2), HEIGHT, WIDTH + 120)
+    left, right = _pair(texture, 0)
+    matched = np.full((HEIGHT, WIDTH), DISPARITY, dtype=np.float32)
+    found = {
+        cell: len(KeypointTracker(KeypointParams(max_count=100_000, cell_px=cell)).update(left, right, matched, 0).ids)
+        for cell in (4, 8)
+    }
+    assert found[4] > 2 * found[8] > 100  # a cell a quarter the area: more corners, as far as the texture has them
+    core = _core(keypoint_cell_px=6)
+    assert core.keypoint_tracker is not None and core.keypoint_tracker.params.cell_px == 6
 
 
 def test_a_corner_without_a_disparity_from_the_matcher_is_not_placed() -> None:

@@ -42,6 +42,8 @@ class StereoDepth:
             raise ConfigError("stereo.min_depth_m and stereo.min_points_depth_m must be > 0")
         if stereo.num_disparities < 0 or stereo.decimation < 1:
             raise ConfigError("stereo.num_disparities must be >= 0 (0 = from calibration), decimation >= 1")
+        if stereo.keypoints < 0 or stereo.keypoint_cell_px < 1:
+            raise ConfigError("stereo.keypoints must be >= 0 (0 = off), keypoint_cell_px >= 1")
         self.cfg = stereo
         self.volume_reach_m = float(np.hypot(volume.x_max, volume.y_half))
         crop = VolumeCrop.from_config(volume, stereo.below_volume_m)
@@ -51,7 +53,7 @@ class StereoDepth:
             ramps = RampFilter(stereo.ramp_step_px, stereo.ramp_reach_px, stereo.ramp_width_px, stereo.ramp_margin_px,
                                stereo.ramp_flat_share, stereo.ramp_snap_ratio)
         self.reprojector = Reprojector(crop, stereo.min_points_depth_m, stereo.decimation, bias, ramps)
-        corners = KeypointParams(max_count=stereo.keypoints)
+        corners = KeypointParams(max_count=stereo.keypoints, cell_px=stereo.keypoint_cell_px)
         self.keypoint_tracker = KeypointTracker(corners) if stereo.keypoints else None
         self._matchers: dict[int, MultiResolutionMatcher] = {}
         self.last_degenerate = False

@@ -41,8 +41,8 @@ LK_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03)
 class KeypointParams:
     """What the keypoint tracker needs from ``StereoConfig`` (``keypoint_*``)."""
 
-    max_count: int = 3000  # corners followed at once; 0 = off
-    cell_px: int = 8  # at most one new corner per square cell of this size
+    max_count: int = 8000  # corners followed at once; 0 = off
+    cell_px: int = 4  # at most one new corner per square cell of this size
     quality: float = 0.001  # weakest corner taken, as a share of the frame's strongest (Shi-Tomasi's measure)
     window_px: int = 9  # Lucas-Kanade window (px, odd): 11 cost twice the time for as many walker corners
     max_return_px: float = 0.6  # a corner followed back must land this near where it started

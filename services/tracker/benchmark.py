@@ -2,7 +2,7 @@
 
 Fifty objects move through the volume of interest for 100 frames, each a cluster of the voxels
 a stereo camera sees of it (a pedestrian, a car's rear, a car's side: 28 to 216 voxels, as in
-the clusters of the synthetic urban runs, median 88), with centroid noise, and 1,528 followed
+the clusters of the synthetic urban runs, median 88), with centroid noise, and 3,952 followed
 corners: ``CORNERS_PER_VOXEL`` on each object's voxels and ``STRAY_CORNERS`` off them, as the
 mapper passes them on (voxel_mapper/core.py). The core runs with the
 default configuration; the median wall and CPU time of ``Tracker.process`` over frames 10-99 is
@@ -42,8 +42,9 @@ def box_cluster(cid: int, lo: np.ndarray, size: np.ndarray, rgb: np.ndarray) -> 
 
 
 #: followed corners per voxel of each object, and off them, that the mapper passes on (held-out
-#: synthetic urban, session 41: 0.22-0.28 a cluster voxel, and a tenth more that strayed off).
-CORNERS_PER_VOXEL, STRAY_CORNERS = 0.25, 150
+#: synthetic urban, session 41: 0.22-0.28 a cluster voxel, and a tenth more that strayed off; 2.5
+#: times as many since session 48's 4 px cells: a median 0.74 a cluster voxel with the strays on urban-s7, -s8).
+CORNERS_PER_VOXEL, STRAY_CORNERS = 0.65, 375
 #: the synthetic rig's image edges (dy / dx = +-0.533 from the origin): clusters near them are cut.
 VIEW = np.array([0.0, 0.0, 0.533, -0.533])
 
