@@ -46,7 +46,7 @@ def test_each_corner_gets_the_velocity_of_the_line_through_its_positions() -> No
     history = _history(HISTORY + 3, ids, start, velocity)
     ready = (history.n >= 6) & (history.missed == 0)
     assert ready.all()
-    fitted, factor = _fit_lines(history.xy, history.t, history.n, np.flatnonzero(ready))
+    fitted, factor = _fit_lines(history.xy, history.t, history.n, history.w, np.flatnonzero(ready))
     doubt = history.std * factor
     by_id = dict(zip(history.ids.tolist(), fitted, strict=True))
     for i, v in zip(ids, velocity, strict=True):
@@ -62,7 +62,7 @@ def test_a_corner_missing_a_frame_keeps_its_history_and_one_gone_longer_is_forgo
     gone = set(range(3, 3 + MAX_GAP + 1))
     history = _history(8, ids, start, velocity, skip={5: {1}} | {k: {2} for k in gone if k != 5} | {5: {1, 2}})
     ready = (history.n >= 6) & (history.missed == 0)
-    fitted, _ = _fit_lines(history.xy, history.t, history.n, np.flatnonzero(ready))
+    fitted, _ = _fit_lines(history.xy, history.t, history.n, history.w, np.flatnonzero(ready))
     n = dict(zip(history.ids.tolist(), history.n.tolist(), strict=True))
     assert n == {1: 7, 2: 2}  # corner 2 came back as new
     assert history.ids[ready].tolist() == [1]
@@ -73,6 +73,53 @@ def test_a_new_world_forgets_every_corner() -> None:
     history = _history(5, np.array([1]), np.zeros((1, 3)), np.zeros((1, 3)))
     history.update(np.array([1]), np.zeros((1, 3)), np.array([0.05]), 0.5, epoch=1)
     assert history.n.tolist() == [1]
+
+
+def _line(history: CornerHistory, corner: int) -> np.ndarray:
+    """The fitted velocity of ``corner``'s line (it must have been seen this frame)."""
+    row = int(np.flatnonzero(history.ids == corner)[0])
+    return _fit_lines(history.xy, history.t, history.n, history.w, np.array([row]))[0][0]
+
+
+def test_a_corner_followed_longer_than_its_history_is_fitted_over_its_last_positions_only() -> None:
+    # it stands at x = 0 for ten frames (0-9), then walks away at 2 m/s: a line through frames 9 on;
+    # once its ring holds none of frames 0-8, the fit is that walk alone
+    history = CornerHistory()
+    for k in range(10 + HISTORY):
+        x = 2.0 * PERIOD_S * max(k - 9, 0)
+        history.update(np.array([3]), np.array([[x, 0.0, 1.0]]), np.array([0.05]), PERIOD_S * k, epoch=0)
+        if k == 8 + HISTORY - 1:  # frames 8 to 15 in the ring: frame 8 still pulls the line down
+            assert _line(history, 3)[0] < 2.0 - 1e-6
+    np.testing.assert_allclose(_line(history, 3), [2.0, 0.0], atol=1e-9)
+
+
+def test_an_id_below_the_followed_ones_gets_its_row_in_order_and_the_others_keep_their_histories() -> None:
+    # a restarted stereo stage counts its corners from 0 again while the tracker still follows 100 and 101
+    history = _history(3, np.array([100, 101]), np.zeros((2, 3)), np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]))
+    history.update(np.array([5, 100]), np.array([[9.0, 9.0, 0.0], [0.3, 0.0, 0.0]]), np.full(2, 0.05), 0.3, epoch=0)
+    assert history.ids.tolist() == [5, 100, 101]
+    assert history.n.tolist() == [1, 4, 3]
+    assert history.missed.tolist() == [0, 0, 1]
+    np.testing.assert_allclose(_line(history, 100), [1.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(history.now[1], [0.3, 0.0, 0.0])
+    assert np.isnan(history.now[2]).all()
+
+
+def test_forgotten_corners_rows_are_given_up_and_the_followed_ones_keep_their_histories() -> None:
+    # 400 corners for two frames, then only every tenth: the rest are forgotten after MAX_GAP
+    # frames and their rows go once they are over half of them
+    ids = np.arange(400)
+    start = np.column_stack([np.zeros(400), np.arange(400) * 0.1, np.ones(400)])
+    velocity = np.tile([0.5, 0.0, 0.0], (400, 1))
+    kept = ids % 10 == 0
+    history = _history(2, ids, start, velocity)
+    for k in range(2, 2 + HISTORY):
+        xyz = start[kept] + velocity[kept] * PERIOD_S * k
+        history.update(ids[kept], xyz, np.full(int(kept.sum()), 0.05), PERIOD_S * k, epoch=0)
+    assert history.ids.tolist() == ids[kept].tolist()
+    assert (history.n == HISTORY).all() and (history.missed == 0).all()
+    for corner in ids[kept][:3]:
+        np.testing.assert_allclose(_line(history, int(corner)), [0.5, 0.0], atol=1e-9)
 
 
 def test_a_clusters_corners_outvote_a_standing_neighbours_merged_into_it() -> None:
