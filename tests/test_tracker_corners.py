@@ -16,6 +16,7 @@ from services.tracker.keypoint_motion import (
     CornerHistory,
     CornerVelocity,
     _fit_lines,
+    _median,
     corner_velocity,
 )
 
@@ -120,6 +121,19 @@ def test_forgotten_corners_rows_are_given_up_and_the_followed_ones_keep_their_hi
     assert (history.n == HISTORY).all() and (history.missed == 0).all()
     for corner in ids[kept][:3]:
         np.testing.assert_allclose(_line(history, int(corner)), [0.5, 0.0], atol=1e-9)
+
+
+def test_the_selected_median_is_numpys_with_ties_and_runs_of_equal_values() -> None:
+    rng = np.random.default_rng(5)
+    scratch = np.empty(300)
+    for m in (*range(1, 12), 31, 64, 65, 130, 300):
+        for values in (
+            rng.normal(size=m),
+            rng.integers(0, 3, m).astype(np.float64),  # few distinct values
+            np.full(m, 0.154),  # corners followed alike share their doubts
+            np.sort(rng.normal(size=m))[::-1].copy(),
+        ):
+            assert _median(values, scratch) == np.median(values), (m, values)
 
 
 def test_a_clusters_corners_outvote_a_standing_neighbours_merged_into_it() -> None:
