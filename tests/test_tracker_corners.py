@@ -1,4 +1,4 @@
-"""A track's velocity from the corners on it the stereo stage follows (services/tracker/keypoint_motion.py)."""
+"""A track's velocity from the corners on it the stereo stage follows (common/corner_motion.py, keypoint_motion.py)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,7 @@ import numpy as np
 import pytest
 from test_tracker import EDGE, box_voxels, new_tracker, of_voxels, step
 
-from common.messages import Cluster, Clusters, EgoMotion
-from services.tracker.anchor import footprint
-from services.tracker.keypoint_motion import (
+from common.corner_motion import (
     HISTORY,
     MAX_GAP,
     CornerHistory,
@@ -19,6 +17,8 @@ from services.tracker.keypoint_motion import (
     _median,
     corner_velocity,
 )
+from common.messages import Cluster, Clusters, EgoMotion
+from services.tracker.anchor import footprint
 
 PERIOD_S = 0.1
 
@@ -104,6 +104,22 @@ def test_an_id_below_the_followed_ones_gets_its_row_in_order_and_the_others_keep
     np.testing.assert_allclose(_line(history, 100), [1.0, 0.0], atol=1e-9)
     np.testing.assert_allclose(history.now[1], [0.3, 0.0, 0.0])
     assert np.isnan(history.now[2]).all()
+
+
+def test_corners_first_passed_on_between_followed_ones_get_rows_in_order_and_the_arrays_grow() -> None:
+    # 600 corners with even ids followed for three frames; then the odd ids between them are passed on
+    # too (a corner first seen above the road long after it was found), past the arrays' first size
+    evens = np.arange(0, 1200, 2)
+    start = np.column_stack([np.zeros(600), evens * 0.01, np.ones(600)])
+    history = _history(3, evens, start, np.tile([0.5, 0.0, 0.0], (600, 1)))
+    ids = np.arange(1201)
+    xyz = np.column_stack([np.where(ids % 2 == 0, 0.5 * PERIOD_S * 3, 7.0), ids * 0.01, np.ones(1201)])
+    history.update(ids, xyz, np.full(1201, 0.05), PERIOD_S * 3, epoch=0)
+    assert history.ids.tolist() == ids.tolist()
+    assert history.n.tolist() == [4 if i % 2 == 0 and i < 1200 else 1 for i in ids]  # 1200: after the last
+    np.testing.assert_allclose(history.now[:, 0], xyz[:, 0])
+    for corner in (0, 598, 1198):
+        np.testing.assert_allclose(_line(history, corner), [0.5, 0.0], atol=1e-9)
 
 
 def test_forgotten_corners_rows_are_given_up_and_the_followed_ones_keep_their_histories() -> None:

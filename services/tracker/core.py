@@ -38,6 +38,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.config import Config, VolumeConfig
+from common.corner_motion import CornerHistory
 from common.messages import Cluster, Clusters, EgoMotion, Obstacles
 from services.tracker import kalman, motion_window
 from services.tracker.anchor import Footprint
@@ -46,7 +47,7 @@ from services.tracker.clock import FrameClock
 from services.tracker.faces import turn_ends, turn_sides
 from services.tracker.fragments import APART_BY_BOX, Sight, Standing, claims, gather, stand_apart
 from services.tracker.jumps import Jumps
-from services.tracker.keypoint_motion import NO_CORNERS, CornerHistory, CornerRule, correct_by_corners, track_corners
+from services.tracker.keypoint_motion import NO_CORNERS, CornerRule, correct_by_corners, track_corners
 from services.tracker.labelling import MotionLabeller
 from services.tracker.left_behind import LeftBehind, restart_from_rest
 from services.tracker.measurement import cut_covariance, stereo_covariance, view_cut_covariance, visibility_covariance
@@ -158,7 +159,7 @@ class Tracker:
             corners,
         )
         self.corner_rule = corners
-        self.corners = CornerHistory()  # the stereo stage's followed corners (keypoint_motion.py)
+        self.corners = CornerHistory()  # the stereo stage's followed corners (common/corner_motion.py)
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self.tracks = TrackTable()
         self.ego = EgoVelocity()

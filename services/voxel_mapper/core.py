@@ -3,9 +3,10 @@
 ``VoxelMapper.process(cloud, ego)`` reads as the paper: follow the world epoch, update the map with
 this frame's points brought into the world (Sect. IV-A), find the road, select the voxels above it
 inside the volume of interest, flood-fill them by colour (Alg. IV-B.1, Eq. 1), join the parts of
-one object (an addition, see ``linkage``), cut low objects off tall structures they were filled
-into (an addition, see ``skyline``), aggregate small clusters (Alg. IV-B.2), remove noise
-(Alg. IV-B.3), cut groups of people apart (an addition, see ``groups``) and describe what is left.
+one object (an addition, see ``linkage``) unless their corners move apart (``apart``), cut low
+objects off tall structures they were filled into (an addition, see ``skyline``), aggregate small
+clusters (Alg. IV-B.2) that their corners do not keep apart, remove noise (Alg. IV-B.3), cut
+groups of people apart (an addition, see ``groups``) and describe what is left.
 
 World-state policy: a new ``world_epoch`` resets the map (its world frame is gone). An invalid
 egomotion also restarts the map from this frame alone: its pose is odometry's prediction, good
@@ -32,6 +33,7 @@ from common.config import Config, VolumeConfig
 from common.errors import ConfigError, InputError
 from common.geometry import transform
 from common.messages import Clusters, EgoMotion, PointCloud
+from services.voxel_mapper.apart import NEVER_APART, Apart, ApartRule, PartMotion
 from services.voxel_mapper.flood_fill import flood_fill, touching_pairs
 from services.voxel_mapper.groups import split_groups
 from services.voxel_mapper.linkage import join_parts
@@ -77,7 +79,8 @@ class VoxelMapper:
                  bridge_voxels: int = 3, points_range_m: float = 0.0, min_points_far: int = 2,
                  join_min_voxels: int = 0, cut_tall_m: float = 0.0, cut_low_m: float = 2.2,
                  cut_min_voxels: int = 12, step_voxels: int = 0, group_dense_share: float = 0.0,
-                 group_min_voxels: int = 40, aggregate_in_turn_m: float = 0.0, circular_hue: bool = False) -> None:
+                 group_min_voxels: int = 40, aggregate_in_turn_m: float = 0.0, circular_hue: bool = False,
+                 apart: ApartRule = NEVER_APART) -> None:
         if edge <= 0.0:
             raise ConfigError(f"voxel.edge must be > 0, got {edge}")
         self.map = VoxelMap(edge, keep_frames, circular_hue=circular_hue)
@@ -98,6 +101,7 @@ class VoxelMapper:
         self.cut = (cut_tall_m, cut_low_m, cut_min_voxels)
         self.groups = (group_dense_share, group_min_voxels)
         self.epoch: int | None = None
+        self.parts = PartMotion(apart)
         self._corner_ids = np.zeros(0, dtype=np.int64)  # the corners passed on last frame
 
     @classmethod
@@ -118,7 +122,9 @@ class VoxelMapper:
                    join_min_voxels=v.join_min_voxels, cut_tall_m=v.cut_tall_m, cut_low_m=v.cut_low_m,
                    cut_min_voxels=v.cut_min_voxels, step_voxels=v.step_bridge_voxels,
                    group_dense_share=v.group_dense_share, group_min_voxels=v.group_min_voxels,
-                   aggregate_in_turn_m=v.aggregate_in_turn_m, circular_hue=v.circular_hue)
+                   aggregate_in_turn_m=v.aggregate_in_turn_m, circular_hue=v.circular_hue,
+                   apart=ApartRule(v.apart_min_corners, v.apart_across_mps, v.apart_sigma_k, v.apart_still_mps,
+                                   v.apart_samples))
 
     def process(self, cloud: PointCloud, ego: EgoMotion) -> Clusters:
         """Update the map with one frame and cluster the voxels above the road."""
@@ -129,21 +135,37 @@ class VoxelMapper:
         road = self.ground.fit(points)
         candidate, height = self._above_road(road, ego.pose)
         labels, n_clusters = flood_fill(self.map, candidate, self.epsilon)
+        corners = transform(ego.pose, np.asarray(cloud.keypoints, dtype=np.float64))
+        apart = self._apart(cloud, corners, candidate, labels, n_clusters, ego)
         labels = join_parts(self.map, labels, n_clusters, ego.pose[:3, 3], self.join_min,
-                            self.join_share, self.bridge_voxels, self.step_voxels)
+                            self.join_share, self.bridge_voxels, self.step_voxels, apart)
         if self.cut[0] > 0.0:
             labels, n_clusters = cut_low_parts(labels, n_clusters, self.map.coords, height, *self.cut)
-        labels = aggregate(labels, n_clusters, touching_pairs(self.map, labels), self.min_cluster_voxels,
-                           self._near(labels, n_clusters, ego.pose))
+        pairs = touching_pairs(self.map, labels)
+        if apart is not None and len(pairs):  # judged again: the joined parts' corners together
+            pairs = pairs[~self.parts.judge(self.map.coords, labels, n_clusters, ego.pose[:3, 3], self.map.edge)(
+                pairs[:, 0], pairs[:, 1])]
+        labels = aggregate(labels, n_clusters, pairs, self.min_cluster_voxels, self._near(labels, n_clusters, ego.pose))
         labels = remove_noise(labels, self.map.coords, n_clusters, self.min_cluster_voxels, self.min_density)
         labels, n_clusters = split_groups(labels, n_clusters, self.map.coords, self.map.hits, *self.groups,
                                           self.map.edge)
-        corners = transform(ego.pose, np.asarray(cloud.keypoints, dtype=np.float64))
         on = self._corners_on_clusters(np.asarray(cloud.keypoint_ids), corners, labels)
         return Clusters(frame_id=cloud.frame_id, stamp_ns=cloud.stamp_ns, clusters=describe(self.map, labels, height),
                         voxel_edge=self.map.edge, world_epoch=ego.world_epoch, ego_pose=np.array(ego.pose),
                         voxel_count=self.map.n, view=view_limits(cloud), keypoint_ids=cloud.keypoint_ids[on],
                         keypoints=corners[on], keypoint_std=cloud.keypoint_std[on])
+
+    def _apart(self, cloud: PointCloud, corners: npt.NDArray[np.float64], candidate: npt.NDArray[np.bool_],
+               labels: npt.NDArray[np.int32], n_parts: int, ego: EgoMotion) -> Apart | None:
+        """The flood fill's parts that their corners keep apart (apart.py); None when that is off."""
+        if not self.parts.on:
+            return None
+        slots = self.map.slots_at(corners)
+        above_road = slots >= 0
+        above_road[above_road] = candidate[slots[above_road]]
+        self.parts.follow(np.asarray(cloud.keypoint_ids), corners, np.asarray(cloud.keypoint_std), above_road,
+                          cloud.stamp_ns, ego.world_epoch)
+        return self.parts.judge(self.map.coords, labels, n_parts, ego.pose[:3, 3], self.map.edge)
 
     def _corners_on_clusters(self, ids: npt.NDArray[np.int64], corners: npt.NDArray[np.float64],
                              labels: npt.NDArray[np.int32]) -> npt.NDArray[np.bool_]:

@@ -37,6 +37,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.voxel_keys import BITS, FIELD, OFFSET
+from services.voxel_mapper.apart import Apart
 from services.voxel_mapper.flood_fill import DELTAS
 from services.voxel_mapper.voxel_map import EMPTY, VoxelMap, find, pack
 
@@ -122,9 +123,29 @@ def _pairs(links: npt.NDArray[np.int64], n_clusters: int) -> tuple[npt.NDArray[n
     return np.unique(links[:, 0] * n_clusters + links[:, 1], return_counts=True)
 
 
+def _join_unless_apart(parent: npt.NDArray[np.int64], xs: npt.NDArray[np.int64], ys: npt.NDArray[np.int64],
+                       shares: npt.NDArray[np.float64], apart: Apart) -> None:
+    """Joins (xs[i], ys[i]), the strongest links first, except where a part with an opinion on one side
+    is kept apart from one on the other: a walker's coat, linked to his trousers (no corners of
+    their own) and they to a wall, still stays off the wall."""
+    opinions: dict[int, list[int]] = {int(i): [int(i)] for i in np.flatnonzero(apart.known)}
+    for q in np.argsort(-shares, kind="stable"):
+        rx, ry = _root(parent, int(xs[q])), _root(parent, int(ys[q]))
+        if rx == ry:
+            continue
+        ox, oy = opinions.get(rx, []), opinions.get(ry, [])
+        if ox and oy and apart(np.repeat(ox, len(oy)), np.tile(oy, len(ox))).any():
+            continue
+        low, high = min(rx, ry), max(rx, ry)
+        parent[high] = low
+        if ox or oy:
+            opinions[low] = ox + oy
+
+
 def join_parts(vmap: VoxelMap, labels: I32, n_clusters: int, position: npt.NDArray[np.float64], min_voxels: int,
-               min_share: float, bridge_voxels: int, step_voxels: int = 0) -> I32:
-    """Labels with strongly linked big clusters given one label (see the module text)."""
+               min_share: float, bridge_voxels: int, step_voxels: int = 0, apart: Apart | None = None) -> I32:
+    """Labels with strongly linked big clusters given one label (see the module text); no two parts
+    that ``apart`` keeps apart end in one, nor do the objects they were joined into first."""
     members = np.flatnonzero(labels >= 0)
     if members.size == 0 or min_share > 1.0:
         return labels
@@ -136,20 +157,23 @@ def join_parts(vmap: VoxelMap, labels: I32, n_clusters: int, position: npt.NDArr
     packed, counts = _pairs(_links(members, labels, *table, DELTAS, sight, int(bridge_voxels), 0), n_clusters)
     a, b = packed // n_clusters, packed % n_clusters
     strong = big[a] & big[b] & (counts >= min_share * sizes[a])
-    joins = [(a[strong], b[strong])]
+    joins = [(a[strong], b[strong], counts[strong] / sizes[a[strong]])]
     if step_voxels > 0:
         # a step link must be seen from both parts: a car's roof links up to a hedge behind it too,
         # but the hedge stands on the road and has no bottom in the air to look back down from
         packed, counts = _pairs(_links(members, labels, *table, NO_DELTAS, sight, 0, int(step_voxels)), n_clusters)
         a, b = packed // n_clusters, packed % n_clusters
         strong = big[a] & big[b] & (counts >= min_share * sizes[a]) & np.isin(b * n_clusters + a, packed)
-        joins.append((a[strong], b[strong]))
+        joins.append((a[strong], b[strong], counts[strong] / sizes[a[strong]]))
+    xs, ys, shares = (np.concatenate(j) for j in zip(*joins, strict=True))
     parent = np.arange(n_clusters)
-    for xs, ys in joins:
+    if apart is None:
         for x, y in zip(xs, ys, strict=True):
             rx, ry = _root(parent, int(x)), _root(parent, int(y))
             if rx != ry:
                 parent[max(rx, ry)] = min(rx, ry)
+    else:
+        _join_unless_apart(parent, xs, ys, shares, apart)
     roots = np.array([_root(parent, i) for i in range(n_clusters)], dtype=np.int32)
     out = labels.copy()
     out[members] = roots[labels[members]]
