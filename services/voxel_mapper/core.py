@@ -143,8 +143,8 @@ class VoxelMapper:
             labels, n_clusters = cut_low_parts(labels, n_clusters, self.map.coords, height, *self.cut)
         pairs = touching_pairs(self.map, labels)
         if apart is not None and len(pairs):  # judged again: the joined parts' corners together
-            pairs = pairs[~self.parts.judge(self.map.coords, labels, n_clusters, ego.pose[:3, 3], self.map.edge)(
-                pairs[:, 0], pairs[:, 1])]
+            joined = self.parts.judge(self.map.coords, labels, n_clusters, ego.pose[:3, 3], self.map.edge)
+            pairs = pairs[~joined(pairs[:, 0], pairs[:, 1])]
         labels = aggregate(labels, n_clusters, pairs, self.min_cluster_voxels, self._near(labels, n_clusters, ego.pose))
         labels = remove_noise(labels, self.map.coords, n_clusters, self.min_cluster_voxels, self.min_density)
         labels, n_clusters = split_groups(labels, n_clusters, self.map.coords, self.map.hits, *self.groups,
