@@ -87,7 +87,7 @@ class PartMotion:
     def __init__(self, rule: ApartRule) -> None:
         self.rule = rule
         self.history = CornerHistory()
-        self._followed = np.zeros(0, dtype=np.int64)  # ids followed last frame, sorted
+        self._followed = np.zeros(0, dtype=np.int64)  # ids followed last frame
         self._world = -1
         self._generation = 0  # a new one forgets every history
         self._start_ns = 0
@@ -110,11 +110,8 @@ class PartMotion:
             self._followed = self._followed[:0]
         self._last_ns = stamp_ns
         ids = np.asarray(ids, dtype=np.int64)
-        followed = np.asarray(above_road, dtype=bool).copy()
-        if len(self._followed) and len(ids):
-            at = np.minimum(np.searchsorted(self._followed, ids), len(self._followed) - 1)
-            followed |= self._followed[at] == ids
-        self._followed = np.sort(ids[followed])
+        followed = np.asarray(above_road, dtype=bool) | np.isin(ids, self._followed)
+        self._followed = ids[followed]
         clock = (stamp_ns - self._start_ns) * 1e-9
         self.history.update(ids[followed], corners[followed], np.asarray(std)[followed], clock, self._generation)
 

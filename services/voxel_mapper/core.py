@@ -136,7 +136,8 @@ class VoxelMapper:
         candidate, height = self._above_road(road, ego.pose)
         labels, n_clusters = flood_fill(self.map, candidate, self.epsilon)
         corners = transform(ego.pose, np.asarray(cloud.keypoints, dtype=np.float64))
-        apart = self._apart(cloud, corners, candidate, labels, n_clusters, ego)
+        corner_slots = self.map.slots_at(corners)  # the map's voxels stay as they are from here on
+        apart = self._apart(cloud, corners, corner_slots, candidate, labels, n_clusters, ego)
         labels = join_parts(self.map, labels, n_clusters, ego.pose[:3, 3], self.join_min,
                             self.join_share, self.bridge_voxels, self.step_voxels, apart)
         if self.cut[0] > 0.0:
@@ -149,29 +150,29 @@ class VoxelMapper:
         labels = remove_noise(labels, self.map.coords, n_clusters, self.min_cluster_voxels, self.min_density)
         labels, n_clusters = split_groups(labels, n_clusters, self.map.coords, self.map.hits, *self.groups,
                                           self.map.edge)
-        on = self._corners_on_clusters(np.asarray(cloud.keypoint_ids), corners, labels)
+        on = self._corners_on_clusters(np.asarray(cloud.keypoint_ids), corner_slots, labels)
         return Clusters(frame_id=cloud.frame_id, stamp_ns=cloud.stamp_ns, clusters=describe(self.map, labels, height),
                         voxel_edge=self.map.edge, world_epoch=ego.world_epoch, ego_pose=np.array(ego.pose),
                         voxel_count=self.map.n, view=view_limits(cloud), keypoint_ids=cloud.keypoint_ids[on],
                         keypoints=corners[on], keypoint_std=cloud.keypoint_std[on])
 
-    def _apart(self, cloud: PointCloud, corners: npt.NDArray[np.float64], candidate: npt.NDArray[np.bool_],
-               labels: npt.NDArray[np.int32], n_parts: int, ego: EgoMotion) -> Apart | None:
+    def _apart(self, cloud: PointCloud, corners: npt.NDArray[np.float64], slots: npt.NDArray[np.int64],
+               candidate: npt.NDArray[np.bool_], labels: npt.NDArray[np.int32], n_parts: int, ego: EgoMotion
+               ) -> Apart | None:
         """The flood fill's parts that their corners keep apart (apart.py); None when that is off."""
         if not self.parts.on:
             return None
-        slots = self.map.slots_at(corners)
         above_road = slots >= 0
         above_road[above_road] = candidate[slots[above_road]]
         self.parts.follow(np.asarray(cloud.keypoint_ids), corners, np.asarray(cloud.keypoint_std), above_road,
                           cloud.stamp_ns, ego.world_epoch)
         return self.parts.judge(self.map.coords, labels, n_parts, ego.pose[:3, 3], self.map.edge)
 
-    def _corners_on_clusters(self, ids: npt.NDArray[np.int64], corners: npt.NDArray[np.float64],
+    def _corners_on_clusters(self, ids: npt.NDArray[np.int64], slots: npt.NDArray[np.int64],
                              labels: npt.NDArray[np.int32]) -> npt.NDArray[np.bool_]:
-        """Which followed corners (world) to pass on: those in a cluster's voxel this frame, and those
-        passed on last frame, so that a corner is passed on from the frame it first lies on a cluster
-        for as long as the stereo stage follows it.
+        """Which followed corners to pass on (``slots``: the map's voxel each lies in, -1: none): those
+        in a cluster's voxel this frame, and those passed on last frame, so that a corner is passed on
+        from the frame it first lies on a cluster for as long as the stereo stage follows it.
 
         Only such a corner is of use to the tracker, which reads the ones in its clusters' voxels and
         their history. Of the stereo stage's 2,200-2,700 corners a frame on synthetic urban and
@@ -181,7 +182,6 @@ class VoxelMapper:
         cluster's voxel, its history broke, and held out 10 fewer moving frames were found
         (docs/results/tracking.md, "Session 41").
         """
-        slots = self.map.slots_at(corners)
         on = slots >= 0
         on[on] = labels[slots[on]] >= 0
         on |= np.isin(ids, self._corner_ids)
