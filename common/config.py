@@ -172,7 +172,7 @@ class VoxelConfig:
     cut_min_voxels: int = 12
     group_dense_share: float = 0.3  # columns with this share of the densest one's points: people (0 = off; 0.2, 0.3)
     group_min_voxels: int = 40  # ... a cluster is cut, one per person, if each keeps this many (0, 20, 30, 40)
-    apart_min_corners: int = 3  # parts each with this many followed corners may be kept apart (0 = never; apart.py)
+    apart_min_corners: int = 5  # parts each with this many followed corners may be kept apart (0 = never; apart.py)
     apart_across_mps: float = 0.4  # ... when their corners' speeds across the line of sight differ by more than this
     apart_sigma_k: float = 2.5  # ... and by more than this many of their joint doubts
     apart_still_mps: float = 0.2  # ... and one part is slower than this across it (0 = either may move)

@@ -48,7 +48,7 @@ def test_a_part_linked_to_a_wall_through_one_without_corners_stays_off_the_wall(
 
 def _walker_by_a_wall(frame: int, speed: float) -> PointCloud:
     """A wall across the view 12 m ahead, and before it, touching it, a runner of a red coat and blue
-    trousers crossing at ``speed``; four corners on each of his parts and ten on the wall. His parts
+    trousers crossing at ``speed``; six corners on each of his parts and ten on the wall. His parts
     fill whole voxels (coat and trousers 12 each) wherever he is at 0 or 2.5 m/s."""
     y = -1.0 + speed * 0.1 * frame
     coat = box((11.52, y + 0.02, 1.02), (11.98, y + 0.48, 1.73), RED)
@@ -56,8 +56,8 @@ def _walker_by_a_wall(frame: int, speed: float) -> PointCloud:
     wall = box((12.0, -4.0, 0.0), (12.3, 4.0, 2.4), GREY, seed=5)
     parts = (road(), coat, legs, wall)
     corners = np.array(
-        [[11.52, y + dy, z] for z in (1.1, 1.6) for dy in (0.1, 0.4)]  # on the coat
-        + [[11.52, y + dy, z] for z in (0.4, 0.8) for dy in (0.1, 0.4)]  # on the trousers
+        [[11.52, y + dy, z] for z in (1.1, 1.4, 1.6) for dy in (0.1, 0.4)]  # on the coat
+        + [[11.52, y + dy, z] for z in (0.35, 0.6, 0.85) for dy in (0.1, 0.4)]  # on the trousers
         + [[12.0, wy, wz] for wy in (-3.0, -2.0, 2.0, 3.0, 3.5) for wz in (0.8, 1.8)]  # on the wall
     )
     return PointCloud(frame_id=frame, stamp_ns=frame * PERIOD_NS, points=np.concatenate([p for p, _ in parts]),
