@@ -94,15 +94,13 @@ class CornerHistory:
     def _arrays(self) -> tuple[NDArray, ...]:
         return self._ids, self._xy, self._t, self._n, self._w, self._missed, self._now, self._std
 
-    def _resize(self, keep: NDArray | slice, capacity: int, at: NDArray | None = None, rows: int = -1) -> None:
-        """The rows ``keep`` moved into arrays of ``capacity`` rows: to the front, or to rows ``at``
-        of the first ``rows`` (the others empty)."""
+    def _resize(self, keep: NDArray | slice, capacity: int) -> None:
+        """The rows ``keep`` moved to the front of arrays of ``capacity`` rows."""
         moved = [a[keep] for a in self._arrays()]
-        kept = len(moved[0])
         self._reset(capacity)
         for old, new in zip(moved, self._arrays(), strict=True):
-            new[slice(0, kept) if at is None else at] = old
-        self._rows = kept if at is None else rows
+            new[: len(old)] = old
+        self._rows = len(moved[0])
         self._views()
 
     def update(self, ids: NDArray, xyz: NDArray, std: NDArray, clock: float, epoch: int) -> None:
