@@ -37,6 +37,7 @@ SHARED: float = 0.25
 #: scale of the median absolute deviation to a normal distribution's sigma.
 MAD_SIGMA: float = 1.4826
 
+
 @dataclass(frozen=True)
 class CornerVelocity:
     """Per piece: the median velocity (n, 2) of the corners on it, its doubt (n,) and their number (n,);
@@ -127,12 +128,10 @@ class CornerHistory:
     def _insert(self, ids: NDArray) -> None:
         """Empty rows, in id order, for ``ids`` below the last row's that have none (a corner first
         passed on long after it was found, or a restarted stereo stage counting from 0 again): the
-        rows above move down in place."""
+        rows above move down in place, into the room ``update`` made for all of ``ids``."""
         rows = self._rows
         at = np.minimum(np.searchsorted(self.ids, ids), max(rows - 1, 0))
         extra = ids[(ids < self.ids[rows - 1]) & (self.ids[at] != ids)] if rows else ids[:0]
-        if rows + len(extra) > len(self._ids):
-            self._resize(slice(0, rows), 2 * (rows + len(extra)))
         _spread(*self._arrays(), rows, extra)
         self._rows = rows + len(extra)
         self._views()

@@ -127,6 +127,5 @@ class PartMotion:
         counts = np.bincount(labels[members], minlength=n_parts)
         c = corner_velocity(self.history, np.asarray(coords[order], dtype=np.int64), counts, np.arange(n_parts),
                             n_parts, edge, self.rule.samples, eye, ACROSS_STD_M)
-        known = (c.count >= self.rule.min_corners) & np.isfinite(c.across_sigma)
-        return Apart(self.rule, known, c.across, np.where(known, c.across_sigma, np.inf))
+        return Apart(self.rule, c.count >= self.rule.min_corners, c.across, c.across_sigma)
 
