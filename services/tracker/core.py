@@ -47,7 +47,7 @@ from services.tracker.clock import FrameClock
 from services.tracker.faces import turn_ends, turn_sides
 from services.tracker.fragments import APART_BY_BOX, Sight, Standing, claims, gather, stand_apart
 from services.tracker.jumps import Jumps
-from services.tracker.keypoint_motion import NO_CORNERS, CornerRule, correct_by_corners, track_corners
+from services.tracker.keypoint_motion import NO_CORNERS, CornerRule, beyond_gate, correct_by_corners, track_corners
 from services.tracker.labelling import MotionLabeller
 from services.tracker.left_behind import LeftBehind, restart_from_rest
 from services.tracker.measurement import cut_covariance, stereo_covariance, view_cut_covariance, visibility_covariance
@@ -56,7 +56,7 @@ from services.tracker.observations import Observations, observe
 from services.tracker.parting import NO_PARTING, Parting, cut_by_view, part_covariance, part_tracked
 from services.tracker.queues import NO_COASTING, Coasting, advance, coasts
 from services.tracker.report import FaceVelocity, obstacles_of
-from services.tracker.track import ACCEPTANCE, TRACKED, TrackTable, born
+from services.tracker.track import ACCEPTANCE, GHOST, TRACKED, TrackTable, born
 
 NDArray = npt.NDArray[Any]
 
@@ -74,6 +74,7 @@ COUNTERS: tuple[str, ...] = (
     "tracks_dropped",
     "slid",
     "parted",
+    "corner_restarts",
 )
 
 
@@ -225,6 +226,7 @@ class Tracker:
                 t.corner_confirm_count,
                 t.corner_blend_count,
                 t.corner_across_std_m,
+                t.corner_restart_count,
             ),
         )
 
@@ -266,6 +268,7 @@ class Tracker:
                 self.tracks.ids, rows, cols, obs, pieces, self.tracks.moving, clusters.voxel_edge
             )
             self.counters["slid"] += restart_from_rest(self.tracks, slid, self.velocity_var)
+            self._restart_revived(rows)
             correct_by_corners(self.tracks, self.corner_rule)
         self._advance_queues(rows, elapsed, piece_of, sight)
         fresh = np.ones(len(obs), dtype=bool)
@@ -441,6 +444,17 @@ class Tracker:
             return np.zeros(len(rows), dtype=bool)
         growth = (obs.extent - t.extent[rows])[:, 0:2].max(axis=1)
         return (growth > self.merge_growth_m) & (t.queue[rows] == TRACKED)
+
+    def _restart_revived(self, rows: NDArray) -> None:
+        """Standing ghosts found again whose corners' pace the filter rejects start again from rest
+        (keypoint_motion.beyond_gate), before the corners correct the filter."""
+        if self.corner_rule.restart_count <= 0:
+            return
+        t = self.tracks
+        revived = rows[(t.queue[rows] == GHOST) & ~t.moving[rows]]
+        if len(revived):
+            wrong = revived[beyond_gate(t, self.corner_rule, revived)]
+            self.counters["corner_restarts"] += restart_from_rest(t, wrong, self.velocity_var)
 
     def _advance_queues(self, rows: NDArray, elapsed: int, piece_of: dict[int, Cluster], sight: Sight) -> None:
         seen = np.zeros(len(self.tracks), dtype=bool)

@@ -43,6 +43,7 @@ class CornerRule:
     confirm_count: int = 0  # this many or more, sure of a speed, may stand in for the faces' window; 0: never
     blend_count: int = 0  # this many or more are blended into a moving track's reported velocity; 0: min_count
     across_std_m: float = 0.0  # a corner's position doubt across the line of sight (m); 0: not judged across
+    restart_count: int = 0  # this many or more, beyond a revived standing ghost's filter's gate, restart it; 0: never
 
 
 NO_CORNERS = CornerRule()
@@ -89,6 +90,31 @@ def correct_by_corners(t: TrackTable, rule: CornerRule) -> None:
     rows = np.flatnonzero((t.corner_count >= max(rule.min_count, 1)) & np.isfinite(t.corner_sigma))
     std = np.maximum(t.corner_sigma[rows], rule.update_floor_mps)
     kalman.correct_velocity(t.x, t.p, rows, t.corner_velocity[rows], std, rule.update_gate)
+
+
+def beyond_gate(t: TrackTable, rule: CornerRule, rows: NDArray) -> NDArray:
+    """Which of the tracks ``rows`` hold ``rule.restart_count`` corners or more whose median velocity
+    lies beyond ``rule.update_gate`` (2-D squared innovation) of what the filter expects.
+
+    ``correct_by_corners`` leaves such corners out, rightly for a track it has followed: they see a
+    neighbour or the background. A ghost found again is another matter: a standing one's velocity
+    was never confirmed, and coasting on it the ghost may have drifted onto a walker, whose corners
+    then say a pace the filter rejects for frames (synthetic urban-s7: a smear blob's two centroid
+    steps read as 3 m/s, its ghost drifted 1.5 m onto walker 49 and reported him at (-0.9, 0.7) m/s
+    against his (1.9, 0.2) while 12-20 corners on him read 1.5-1.9; docs/results/tracking.md,
+    "Session 51"). Such a track starts again from rest (core.py) and the corners correct it.
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    out = np.zeros(len(rows), dtype=bool)
+    if rule.restart_count <= 0 or rule.update_gate <= 0.0 or rule.samples <= 0:
+        return out
+    held = np.flatnonzero((t.corner_count[rows] >= rule.restart_count) & np.isfinite(t.corner_sigma[rows]))
+    k = rows[held]
+    std = np.maximum(t.corner_sigma[k], rule.update_floor_mps)
+    s = t.p[k, 3:5, 3:5] + (std * std)[:, None, None] * np.eye(2)
+    y = t.corner_velocity[k] - t.x[k, 3:5]
+    out[held] = np.einsum("ni,ni->n", y, np.linalg.solve(s, y[:, :, None])[:, :, 0]) > rule.update_gate
+    return out
 
 
 def blend_corners(t: TrackTable, rule: CornerRule, velocity: NDArray, velocity_cov: NDArray) -> None:
