@@ -264,7 +264,7 @@ class TrackerConfig:
     corner_update_floor_mps: float = 0.2  # ... as a measurement at least this doubtful (m/s)
     corner_confirm_count: int = 2  # this many, sure of a speed, may confirm the filter's (3, 5 measured); 0: off
     corner_blend_count: int = 2  # this many are blended into a moving track's reported velocity (5 until session 42)
-    corner_restart_count: int = 4  # a standing ghost found again with this many beyond its filter's gate restarts; 0: off
+    corner_restart_count: int = 4  # a standing ghost found again with this many beyond its filter's gate restarts
     corner_across_std_m: float = 0.05  # a corner's place across the line of sight (m; 0.03, 0.1 measured); 0: off
 
 

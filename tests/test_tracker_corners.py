@@ -347,8 +347,6 @@ def test_corners_and_their_doubts_must_agree_in_number() -> None:
         decode(encode(msg), Clusters)
 
 
-_ = Cluster  # the helpers' type, re-exported for readers of this file
-
 
 def _ghost_drifting_onto_a_walker(restart_count: int) -> list[np.ndarray]:
     """A blob 20 m ahead whose centroid steps back 0.3 m a frame for its first frames (a smear's
@@ -368,7 +366,7 @@ def _ghost_drifting_onto_a_walker(restart_count: int) -> list[np.ndarray]:
             shown = [of_voxels(box_voxels((18.0 + walked, -0.25, 0.0), (18.5 + walked, 0.25, 1.75)))]
         clusters = Clusters(
             frame_id=k, stamp_ns=k * 100_000_000, clusters=shown, voxel_edge=EDGE, keypoint_ids=np.arange(8),
-            keypoints=corners + [walked, 0.0, 0.0], keypoint_std=np.full(8, 0.3, dtype=np.float32),
+            keypoints=corners + np.array([walked, 0.0, 0.0]), keypoint_std=np.full(8, 0.3, dtype=np.float32),
         )  # fmt: skip
         found = tracker.process(clusters, EgoMotion(frame_id=k, stamp_ns=k * 100_000_000, valid=True)).obstacles
         if k >= 7:
@@ -383,3 +381,6 @@ def test_a_standing_ghost_found_again_on_a_walker_takes_his_corners_pace() -> No
         assert all(len(v) == 1 for v in reported), reported  # one obstacle: the ghost found again
         worst = max(float(np.abs(v[0] - [1.6, 0.0]).max()) for v in reported)
         assert (worst < 0.1) if restart else (worst > 0.6), (restart, reported)
+
+
+_ = Cluster  # the helpers' type, re-exported for readers of this file
