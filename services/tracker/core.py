@@ -45,9 +45,9 @@ from services.tracker.anchor import Footprint
 from services.tracker.association import Weights, distance_matrix, greedy_pairs, position_variance
 from services.tracker.clock import FrameClock
 from services.tracker.faces import turn_ends, turn_sides
-from services.tracker.fragments import APART_BY_BOX, Sight, Standing, claims, gather, stand_apart
+from services.tracker.fragments import APART_BY_BOX, Sight, Standing, gather, inside_known
 from services.tracker.jumps import Jumps
-from services.tracker.keypoint_motion import NO_CORNERS, CornerRule, beyond_gate, correct_by_corners, track_corners
+from services.tracker.keypoint_motion import NO_CORNERS, CornerRule, correct_by_corners, restart_revived, track_corners
 from services.tracker.labelling import MotionLabeller
 from services.tracker.left_behind import LeftBehind, restart_from_rest
 from services.tracker.measurement import cut_covariance, stereo_covariance, view_cut_covariance, visibility_covariance
@@ -56,7 +56,7 @@ from services.tracker.observations import Observations, observe
 from services.tracker.parting import NO_PARTING, Parting, cut_by_view, part_covariance, part_tracked
 from services.tracker.queues import NO_COASTING, Coasting, advance, coasts
 from services.tracker.report import FaceVelocity, obstacles_of
-from services.tracker.track import ACCEPTANCE, GHOST, TRACKED, TrackTable, born
+from services.tracker.track import ACCEPTANCE, TRACKED, TrackTable, born
 
 NDArray = npt.NDArray[Any]
 
@@ -268,7 +268,7 @@ class Tracker:
                 self.tracks.ids, rows, cols, obs, pieces, self.tracks.moving, clusters.voxel_edge
             )
             self.counters["slid"] += restart_from_rest(self.tracks, slid, self.velocity_var)
-            self._restart_revived(rows)
+            self.counters["corner_restarts"] += restart_revived(self.tracks, self.corner_rule, rows, self.velocity_var)
             correct_by_corners(self.tracks, self.corner_rule)
         self._advance_queues(rows, elapsed, piece_of, sight)
         fresh = np.ones(len(obs), dtype=bool)
@@ -445,48 +445,15 @@ class Tracker:
         growth = (obs.extent - t.extent[rows])[:, 0:2].max(axis=1)
         return (growth > self.merge_growth_m) & (t.queue[rows] == TRACKED)
 
-    def _restart_revived(self, rows: NDArray) -> None:
-        """Standing ghosts found again whose corners' pace the filter rejects start again from rest
-        (keypoint_motion.beyond_gate), before the corners correct the filter."""
-        if self.corner_rule.restart_count <= 0:
-            return
-        t = self.tracks
-        revived = rows[(t.queue[rows] == GHOST) & ~t.moving[rows]]
-        if len(revived):
-            wrong = revived[beyond_gate(t, self.corner_rule, revived)]
-            self.counters["corner_restarts"] += restart_from_rest(t, wrong, self.velocity_var)
-
     def _advance_queues(self, rows: NDArray, elapsed: int, piece_of: dict[int, Cluster], sight: Sight) -> None:
         seen = np.zeros(len(self.tracks), dtype=bool)
         seen[rows] = True
-        held = self._inside_known(seen, piece_of, sight)
+        held = inside_known(self.tracks, seen, piece_of, sight, self.fragment_margin, self.standing)
         t = self.tracks
         coast = coasts(t, seen, elapsed, self.coasting, self.standing.upright(t.bbox_max - t.bbox_min))
         keep = advance(t, seen, elapsed, self.accept_frames, self.ghost_frames, held, self.accept_misses, coast)
         self.counters["tracks_dropped"] += int((~keep).sum())
         self.tracks.keep(keep)
-
-    def _inside_known(self, seen: NDArray, piece_of: dict[int, Cluster], sight: Sight) -> NDArray:
-        """Acceptance tracks whose centroid lies in the box of a tracked object seen this frame.
-
-        Such a track is a piece the merge of fragments.py missed (it was outside the predicted
-        box); promoted, it would be a second obstacle on one object, moving with it. Unless the
-        two clusters (``piece_of``, by track row) stand apart as fragments.stand_apart judges.
-        """
-        t = self.tracks
-        held = np.zeros(len(t), dtype=bool)
-        young = t.queue == ACCEPTANCE
-        known = seen & (t.queue == TRACKED)
-        if self.fragment_margin < 0.0 or not young.any() or not known.any():
-            return held
-        inside = claims(t.centroid[young], t.bbox_min[known], t.bbox_max[known], self.fragment_margin)
-        known_rows, young_rows = np.flatnonzero(known), np.flatnonzero(young)
-        for k, y in zip(*np.nonzero(inside), strict=True):
-            whole, piece = piece_of.get(int(known_rows[k])), piece_of.get(int(young_rows[y]))
-            if whole is not None and piece is not None and stand_apart(whole, piece, self.standing, sight):
-                inside[k, y] = False
-        held[young] = inside.any(axis=0)
-        return held
 
     def _initial_p(self, obs: Observations, r: NDArray) -> NDArray:
         """A new track's covariance: position as trusted as its cluster, velocity all but unknown.

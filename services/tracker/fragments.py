@@ -63,6 +63,7 @@ from scipy.sparse.csgraph import connected_components
 
 from common.messages import Cluster
 from common.voxel_keys import pack_cells
+from services.tracker.track import ACCEPTANCE, TRACKED, TrackTable
 
 NDArray = npt.NDArray[Any]
 
@@ -275,3 +276,28 @@ def gather(
         merged_into[first] = merge([clusters[i] for i in members.tolist()], edge)
         absorbed.update(int(i) for i in members[1:])
     return [merged_into.get(i, c) for i, c in enumerate(clusters) if i not in absorbed]
+
+
+def inside_known(
+    t: TrackTable, seen: NDArray, piece_of: dict[int, Cluster], sight: Sight, margin: float, standing: Standing
+) -> NDArray:
+    """Acceptance tracks whose centroid lies in the box (grown by ``margin``; < 0: none) of a tracked
+    object seen this frame.
+
+    Such a track is a piece the merge of ``gather`` missed (it was outside the predicted box);
+    promoted, it would be a second obstacle on one object, moving with it. Unless the two clusters
+    (``piece_of``, by track row) stand apart as ``stand_apart`` judges.
+    """
+    held = np.zeros(len(t), dtype=bool)
+    young = t.queue == ACCEPTANCE
+    known = seen & (t.queue == TRACKED)
+    if margin < 0.0 or not young.any() or not known.any():
+        return held
+    inside = claims(t.centroid[young], t.bbox_min[known], t.bbox_max[known], margin)
+    known_rows, young_rows = np.flatnonzero(known), np.flatnonzero(young)
+    for k, y in zip(*np.nonzero(inside), strict=True):
+        whole, piece = piece_of.get(int(known_rows[k])), piece_of.get(int(young_rows[y]))
+        if whole is not None and piece is not None and stand_apart(whole, piece, standing, sight):
+            inside[k, y] = False
+    held[young] = inside.any(axis=0)
+    return held

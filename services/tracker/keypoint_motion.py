@@ -24,7 +24,8 @@ import numpy.typing as npt
 from common.corner_motion import CornerHistory, corner_velocity
 from services.tracker import kalman
 from services.tracker.anchor import Footprint
-from services.tracker.track import TrackTable
+from services.tracker.left_behind import restart_from_rest
+from services.tracker.track import GHOST, TrackTable
 
 NDArray = npt.NDArray[Any]
 
@@ -102,7 +103,7 @@ def beyond_gate(t: TrackTable, rule: CornerRule, rows: NDArray) -> NDArray:
     then say a pace the filter rejects for frames (synthetic urban-s7: a smear blob's two centroid
     steps read as 3 m/s, its ghost drifted 1.5 m onto walker 49 and reported him at (-0.9, 0.7) m/s
     against his (1.9, 0.2) while 12-20 corners on him read 1.5-1.9; docs/results/tracking.md,
-    "Session 51"). Such a track starts again from rest (core.py) and the corners correct it.
+    "Session 51"). Such a track starts again from rest (``restart_revived``) and the corners correct it.
     """
     rows = np.asarray(rows, dtype=np.int64)
     out = np.zeros(len(rows), dtype=bool)
@@ -115,6 +116,17 @@ def beyond_gate(t: TrackTable, rule: CornerRule, rows: NDArray) -> NDArray:
     y = t.corner_velocity[k] - t.x[k, 3:5]
     out[held] = np.einsum("ni,ni->n", y, np.linalg.solve(s, y[:, :, None])[:, :, 0]) > rule.update_gate
     return out
+
+
+def restart_revived(t: TrackTable, rule: CornerRule, rows: NDArray, velocity_var: NDArray) -> int:
+    """Standing ghosts among the tracks seen this frame (``rows``) whose corners' pace the filter
+    rejects (``beyond_gate``) start again from rest, before the corners correct the filter; how many."""
+    if rule.restart_count <= 0:
+        return 0
+    revived = rows[(t.queue[rows] == GHOST) & ~t.moving[rows]]
+    if len(revived) == 0:
+        return 0
+    return restart_from_rest(t, revived[beyond_gate(t, rule, revived)], velocity_var)
 
 
 def blend_corners(t: TrackTable, rule: CornerRule, velocity: NDArray, velocity_cov: NDArray) -> None:
