@@ -33,16 +33,13 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from common.config import TrackerConfig
 from common.corner_motion import CornerHistory, corner_velocity
 from common.errors import ConfigError
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 Mask = npt.NDArray[np.bool_]
-
-#: a corner's position doubt across the line of sight (m), as the tracker takes it (``tracker.corner_across_std_m``).
-ACROSS_STD_M: float = 0.05
-
 
 @dataclass(frozen=True)
 class ApartRule:
@@ -53,6 +50,8 @@ class ApartRule:
     sigma_k: float = 2.5  # ... and by more than this many of their joint doubts
     still_mps: float = 0.2  # ... and one of them is slower than this across it (0: no part need stand)
     samples: int = 3  # frames a corner must have been followed for its velocity
+    # a corner's position doubt across the line of sight (m): the tracker's (``tracker.corner_across_std_m``)
+    across_std_m: float = TrackerConfig.corner_across_std_m
 
     def __post_init__(self) -> None:
         if self.min_corners < 0 or self.across_mps < 0.0 or self.sigma_k < 0.0 or self.still_mps < 0.0:
@@ -126,6 +125,6 @@ class PartMotion:
         order = members[np.argsort(labels[members], kind="stable")]
         counts = np.bincount(labels[members], minlength=n_parts)
         c = corner_velocity(self.history, np.asarray(coords[order], dtype=np.int64), counts, np.arange(n_parts),
-                            n_parts, edge, self.rule.samples, eye, ACROSS_STD_M)
+                            n_parts, edge, self.rule.samples, eye, self.rule.across_std_m)
         return Apart(self.rule, c.count >= self.rule.min_corners, c.across, c.across_sigma)
 

@@ -124,7 +124,7 @@ class VoxelMapper:
                    group_dense_share=v.group_dense_share, group_min_voxels=v.group_min_voxels,
                    aggregate_in_turn_m=v.aggregate_in_turn_m, circular_hue=v.circular_hue,
                    apart=ApartRule(v.apart_min_corners, v.apart_across_mps, v.apart_sigma_k, v.apart_still_mps,
-                                   v.apart_samples))
+                                   v.apart_samples, cfg.tracker.corner_across_std_m))
 
     def process(self, cloud: PointCloud, ego: EgoMotion) -> Clusters:
         """Update the map with one frame and cluster the voxels above the road."""
