@@ -434,7 +434,36 @@ def test_why_counts_every_counted_object_frame_as_one_cluster_pct_does(tmp_path:
         "car", "40", "37.5", "5", "20", "52.6", "29.4", "0.0"
     ]  # fmt: skip
     # car 2 had no cluster at all: all 20 of its frames are missed with nothing reaching it
-    assert lines[-1].split() == ["car", "20", "0", "0", "20"]
+    missed = lines.index(next(x for x in lines if x.startswith("missed objects")))
+    assert lines[missed + 2].split() == ["car", "20", "0", "0", "20"]
+
+
+def test_why_tells_the_speed_error_object_by_object(tmp_path: Path) -> None:
+    """Two moving cars read 1.0 and 0.5 m/s off: each its row, worst first, adding up to the RMSE."""
+
+    def two_movers(k: int) -> list[GroundTruthObject]:
+        return [*scene(k), car(3, [8.0 + 1.0 * k, -4.0, 0.75], [10.0, 0.0, 0.0])]
+
+    def off(k: int, obj: GroundTruthObject) -> Obstacle | None:
+        det = perfect(k, obj)
+        assert det is not None
+        det.velocity = det.velocity + {1: np.array([0.3, 0.4, 0.0]), 3: np.array([0.0, 1.0, 0.0])}.get(obj.id, 0.0)
+        return det
+
+    path = write_run(tmp_path / "run.mcap", detect=off, objects=two_movers)
+    run = read_inputs(path)
+    rows = breakdown(run, matched_frames(run)).speed
+    assert sorted(rows) == [(1, "car"), (3, "car")]
+    assert rows[(1, "car")] == pytest.approx([0.5] * 10)
+    assert rows[(3, "car")] == pytest.approx([1.0] * 10)
+    speed = evaluate_recording(path)["speed"]
+    assert speed["pairs"] == 20
+    assert speed["rmse_mps"] == pytest.approx(np.sqrt((10 * 0.25 + 10 * 1.0) / 20))
+    lines = format_breakdown(breakdown(run, matched_frames(run))).splitlines()
+    head = lines.index(next(x for x in lines if x.startswith("speed error by object")))
+    assert "20 true moving frames, RMSE 0.79 m/s, squared error 12.5 m^2/s^2" in lines[head]
+    assert lines[head + 2].split() == ["3", "car", "10", "10.00", "80.0", "1.00", "1.00"]
+    assert lines[head + 3].split() == ["1", "car", "10", "2.50", "20.0", "0.50", "0.50"]
 
 
 @pytest.mark.parametrize("damage", ["truncated", "not_mcap"])

@@ -18,9 +18,14 @@ its box, only clusters that also reach another counted object (merged), or none 
 noise, or never seen). The three want different remedies: the first a centroid that the smear
 cannot move, the second a cut, the third a lower noise limit or better stereo.
 
-Last, the scored truth-frames whose box shares volume with another object's: a synthetic street
+Then the scored truth-frames whose box shares volume with another object's: a synthetic street
 that puts a bin inside a kiosk or rides a cyclist through a pole scores a miss no pipeline could
 avoid, and this says how much of the figures that is.
+
+Last, the speed error object by object. The RMSE pools every true moving frame, and on a street a
+few objects hold most of its squared error: a lead car changing lane followed at its rear face, a
+cyclist read through metres of range noise, a track that slid from one object onto another
+(docs/results/tracking.md, "Session 52"). Which they are says what to mend.
 """
 
 from __future__ import annotations
@@ -33,7 +38,7 @@ import numpy.typing as npt
 
 from common.evaluation.inputs import RunInputs
 from common.evaluation.matching import FrameMatch, TruthView
-from common.evaluation.metrics import WARMUP_FRAMES, grace_ids, scored_class
+from common.evaluation.metrics import WARMUP_FRAMES, grace_ids, scored_class, tally
 from common.evaluation.segmentation import box_overlaps, clusters_in_vehicle, clusters_on, truths_share_volume
 from common.messages import OPEN_CLASSES
 
@@ -64,6 +69,7 @@ class Breakdown:
     segmentation: Counter[Row] = field(default_factory=Counter)  # counted object-frames, every frame
     missed: Counter[tuple[str, str]] = field(default_factory=Counter)  # (class, MISSED_KINDS) of the missed ones
     inside: Counter[Row] = field(default_factory=Counter)  # (motion, class, outcome) of those sharing volume
+    speed: dict[tuple[int, str], list[float]] = field(default_factory=dict)  # (id, class): its speed errors (m/s)
 
     def total(self, motion: str, outcome: str | None = None) -> int:
         rows: Counter[Row] = getattr(self, motion)
@@ -136,6 +142,9 @@ def breakdown(run: RunInputs, frames: list[FrameMatch], warmup: int = WARMUP_FRA
             getattr(out, motion)[(cls, outcome, segment_of(truth, boxes))] += 1
             if cls not in OPEN_CLASSES and any(u is not truth and truths_share_volume(truth, u) for u in solid):
                 out.inside[(motion, cls, outcome)] += 1
+    pairs = tally(frames, warmup)  # the speed figure's own pairs, so the rows add up to its RMSE
+    for oid, error in zip(pairs.speed_truths, pairs.speed_errors, strict=True):
+        out.speed.setdefault((oid, cls_of.get(oid, "?")), []).append(error)
     return out
 
 
@@ -156,7 +165,36 @@ def format_breakdown(b: Breakdown) -> str:
         lines.extend(_missed_lines(b.missed))
     if b.inside:
         lines.extend(_inside_lines(b.inside))
+    if b.speed:
+        lines.extend(_speed_lines(b.speed))
     return "\n".join(lines)
+
+
+#: objects the speed table lists, largest squared error first; the rest are summed in one line.
+SPEED_ROWS: int = 10
+
+
+def _speed_lines(errors: dict[tuple[int, str], list[float]]) -> list[str]:
+    """Per object: true moving frames, squared speed error (m^2/s^2) and its share, RMS and worst error."""
+    rows = sorted(((oid, cls, np.asarray(e)) for (oid, cls), e in errors.items()), key=lambda r: -float(r[2] @ r[2]))
+    total = sum(float(e @ e) for _, _, e in rows)
+    pairs = sum(len(e) for _, _, e in rows)
+    lines = [
+        f"speed error by object ({pairs} true moving frames, RMSE {np.sqrt(total / pairs):.2f} m/s, "
+        f"squared error {total:.1f} m^2/s^2)",
+        f"  {'id':>6} {'class':<12} {'frames':>7} {'sq. error':>10} {'share %':>8} {'RMS':>6} {'worst':>6}",
+    ]
+    for oid, cls, e in rows[:SPEED_ROWS]:
+        sq = float(e @ e)
+        lines.append(
+            f"  {oid:>6} {cls:<12} {len(e):>7} {sq:>10.2f} {100.0 * sq / max(total, 1e-12):>8.1f} "
+            f"{np.sqrt(sq / len(e)):>6.2f} {e.max():>6.2f}"
+        )
+    rest = rows[SPEED_ROWS:]
+    if rest:
+        sq, n = sum(float(e @ e) for _, _, e in rest), sum(len(e) for _, _, e in rest)
+        lines.append(f"  {'':>6} {f'{len(rest)} more':<12} {n:>7} {sq:>10.2f} {100.0 * sq / max(total, 1e-12):>8.1f}")
+    return lines
 
 
 def _inside_lines(rows: Counter[Row]) -> list[str]:

@@ -63,6 +63,7 @@ class Tally:
     fp: int = 0
     fn: int = 0
     speed_errors: list[float] = field(default_factory=list)
+    speed_truths: list[int] = field(default_factory=list)  # the object each speed error is of
     stationary: int = 0
     stationary_matched: int = 0
     stationary_moving: int = 0
@@ -84,6 +85,7 @@ class Tally:
             if det.moving and cls == "moving":
                 self.tp += 1
                 self.speed_errors.append(float(np.linalg.norm(det.velocity - truth.velocity)))
+                self.speed_truths.append(truth.id)
             elif det.moving:
                 self.fp += 1
         for t, truth in enumerate(frame.truths):
