@@ -452,14 +452,15 @@ def test_why_tells_the_speed_error_object_by_object(tmp_path: Path) -> None:
 
     path = write_run(tmp_path / "run.mcap", detect=off, objects=two_movers)
     run = read_inputs(path)
-    rows = breakdown(run, matched_frames(run)).speed
+    why = breakdown(run, matched_frames(run))
+    rows = why.speed
     assert sorted(rows) == [(1, "car"), (3, "car")]
     assert rows[(1, "car")] == pytest.approx([0.5] * 10)
     assert rows[(3, "car")] == pytest.approx([1.0] * 10)
     speed = evaluate_recording(path)["speed"]
     assert speed["pairs"] == 20
     assert speed["rmse_mps"] == pytest.approx(np.sqrt((10 * 0.25 + 10 * 1.0) / 20))
-    lines = format_breakdown(breakdown(run, matched_frames(run))).splitlines()
+    lines = format_breakdown(why).splitlines()
     head = lines.index(next(x for x in lines if x.startswith("speed error by object")))
     assert "20 true moving frames, RMSE 0.79 m/s, squared error 12.5 m^2/s^2" in lines[head]
     assert lines[head + 2].split() == ["3", "car", "10", "10.00", "80.0", "1.00", "1.00"]

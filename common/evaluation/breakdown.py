@@ -176,24 +176,23 @@ SPEED_ROWS: int = 10
 
 def _speed_lines(errors: dict[tuple[int, str], list[float]]) -> list[str]:
     """Per object: true moving frames, squared speed error (m^2/s^2) and its share, RMS and worst error."""
-    rows = sorted(((oid, cls, np.asarray(e)) for (oid, cls), e in errors.items()), key=lambda r: -float(r[2] @ r[2]))
-    total = sum(float(e @ e) for _, _, e in rows)
-    pairs = sum(len(e) for _, _, e in rows)
+    rows = sorted(((float(np.square(e).sum()), oid, cls, e) for (oid, cls), e in errors.items()), key=lambda r: -r[0])
+    total = max(sum(r[0] for r in rows), 1e-12)
+    pairs = sum(len(r[3]) for r in rows)
     lines = [
         f"speed error by object ({pairs} true moving frames, RMSE {np.sqrt(total / pairs):.2f} m/s, "
         f"squared error {total:.1f} m^2/s^2)",
         f"  {'id':>6} {'class':<12} {'frames':>7} {'sq. error':>10} {'share %':>8} {'RMS':>6} {'worst':>6}",
     ]
-    for oid, cls, e in rows[:SPEED_ROWS]:
-        sq = float(e @ e)
+    for sq, oid, cls, e in rows[:SPEED_ROWS]:
         lines.append(
-            f"  {oid:>6} {cls:<12} {len(e):>7} {sq:>10.2f} {100.0 * sq / max(total, 1e-12):>8.1f} "
-            f"{np.sqrt(sq / len(e)):>6.2f} {e.max():>6.2f}"
+            f"  {oid:>6} {cls:<12} {len(e):>7} {sq:>10.2f} {100.0 * sq / total:>8.1f} "
+            f"{np.sqrt(sq / len(e)):>6.2f} {max(e):>6.2f}"
         )
     rest = rows[SPEED_ROWS:]
     if rest:
-        sq, n = sum(float(e @ e) for _, _, e in rest), sum(len(e) for _, _, e in rest)
-        lines.append(f"  {'':>6} {f'{len(rest)} more':<12} {n:>7} {sq:>10.2f} {100.0 * sq / max(total, 1e-12):>8.1f}")
+        sq, n = sum(r[0] for r in rest), sum(len(r[3]) for r in rest)
+        lines.append(f"  {'':>6} {f'{len(rest)} more':<12} {n:>7} {sq:>10.2f} {100.0 * sq / total:>8.1f}")
     return lines
 
 
