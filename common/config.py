@@ -45,6 +45,15 @@ class VolumeConfig:
     y_half: float = 8.2
     z_min: float = 0.0
     z_max: float = 3.5
+    # the stages see and follow this far (m) beyond x_max, so that an object coming into range arrives
+    # with a track and a speed, and one at the far end is not cut there; what lies beyond x_max is
+    # still outside the volume: clusters there are passed on apart (Clusters.beyond), evaluation
+    # scores nothing there (docs/results/tracking.md, "Session 52")
+    lookahead_m: float = 1.5  # 0: the paper's, the volume alone (3.0 measured)
+
+    def seen(self) -> VolumeConfig:
+        """The volume the stages look into: this one, lengthened by ``lookahead_m``."""
+        return dataclasses.replace(self, x_max=self.x_max + self.lookahead_m, lookahead_m=0.0)
 
 
 @dataclass

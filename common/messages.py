@@ -220,6 +220,9 @@ class Clusters(Message):
     keypoint_ids: NDArray = array_field("int64", (None,), _zeros(0, dtype="int64"))
     keypoints: NDArray = array_field("float64", (None, 3), _zeros(0, 3))
     keypoint_std: NDArray = array_field("float32", (None,), _zeros(0, dtype="float32"))
+    # clusters centred beyond the volume's far end, in its lookahead (VolumeConfig.lookahead_m): the
+    # tracker follows them so that what comes into range arrives with a track; nothing else uses them
+    beyond: list[Cluster] = field(default_factory=list)
 
 
 @dataclass(kw_only=True)

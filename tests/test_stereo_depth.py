@@ -145,7 +145,7 @@ def test_points_outside_the_volume_are_cropped_but_the_road_band_is_kept() -> No
     """The box face spans z 1.17-1.83 m and y -0.58-0.08 m; the wall lies beyond x_max."""
     cfg = Config()
     x_max = (PLANE_DEPTH + BOX_DEPTH) / 2
-    cfg.volume = dataclasses.replace(cfg.volume, x_max=x_max, y_half=0.4, z_min=1.4, z_max=2.5)
+    cfg.volume = dataclasses.replace(cfg.volume, x_max=x_max, y_half=0.4, z_min=1.4, z_max=2.5, lookahead_m=0.0)
     cfg.stereo.below_volume_m = 0.3
     cloud, disp = StereoDepth.from_config(cfg).process(_scene())
     pts = cloud.points
@@ -154,6 +154,10 @@ def test_points_outside_the_volume_are_cropped_but_the_road_band_is_kept() -> No
     assert pts[:, 2].min() >= 1.1 and pts[:, 2].max() <= 2.5
     assert np.any(pts[:, 2] < 1.4)  # points below z_min (down to z_min - below) stay for the mapper
     assert np.isfinite(disp.disparity).sum() > 3 * len(pts)  # the disparity image is never cropped
+    # with a lookahead reaching past the wall, the wall beyond x_max is kept for the mapper
+    cfg.volume.lookahead_m = PLANE_DEPTH * 1.05 - x_max
+    ahead, _ = StereoDepth.from_config(cfg).process(_scene())
+    assert np.sum(ahead.points[:, 0] > x_max) > 1000
 
 
 def test_a_rigs_disparity_bias_moves_the_points_but_not_the_disparity_image() -> None:

@@ -12,6 +12,7 @@ from common.config import Config
 from common.errors import ConfigError, InputError
 from common.geometry import make_pose, rot_z
 from common.messages import Clusters, EgoMotion, GroundTruthObject, GroundTruthObjects, PointCloud
+from services.tracker import Tracker
 from services.voxel_mapper import VoxelMapper
 from services.voxel_mapper.colour import hsl_of
 from services.voxel_mapper.overhang import Overhang, frame_rows, overhangs
@@ -328,6 +329,28 @@ def test_clusters_round_trip_through_the_codec() -> None:
     back = decode(encode(out), Clusters)
     assert back.frame_id == 7 and back.voxel_edge == 0.25
     assert np.array_equal(back.clusters[0].voxels, out.clusters[0].voxels)
+
+
+def test_a_box_in_the_lookahead_is_passed_on_apart_and_followed_by_the_tracker() -> None:
+    """A box centred 0.8 m beyond the volume's far end (28.7 m): clustered with a 1.5 m lookahead, but in
+    ``Clusters.beyond``, not among the volume's clusters; without the lookahead not clustered at all."""
+    cfg = Config()
+    assert cfg.volume.lookahead_m == 1.5  # the default
+    assert cfg.volume.seen().x_max == pytest.approx(30.2) and cfg.volume.x_max == pytest.approx(28.7)
+    scene = (road(x_max=30.2), box((10, -1, 0), (11.5, 1, 1.5), RED), box((29.0, -1, 0), (30.0, 1, 1.5), BLUE))
+    tracker = Tracker.from_config(cfg)
+    ahead = VoxelMapper.from_config(cfg)
+    for k in range(4):
+        out = ahead.process(cloud(*scene, frame_id=k), ego(frame_id=k))
+        obstacles = tracker.process(out, ego(frame_id=k))
+    assert [round(float(c.centroid[0])) for c in out.clusters] == [11]
+    assert [round(float(c.centroid[0]), 1) for c in out.beyond] == [pytest.approx(29.5, abs=0.2)]
+    assert np.array_equal(decode(encode(out), Clusters).beyond[0].voxels, out.beyond[0].voxels)
+    followed = sorted(round(float(o.centroid[0])) for o in obstacles.obstacles if o.state == "tracked")
+    assert followed == [11, 30]  # the tracker follows the box beyond as it does the one inside
+    cfg.volume.lookahead_m = 0.0
+    plain = VoxelMapper.from_config(cfg).process(cloud(*scene), ego())
+    assert [round(float(c.centroid[0])) for c in plain.clusters] == [11] and plain.beyond == []
 
 
 def test_clusters_carry_the_image_side_edges_the_cloud_was_seen_within() -> None:

@@ -45,8 +45,9 @@ class StereoDepth:
         if stereo.keypoints < 0 or stereo.keypoint_cell_px < 1:
             raise ConfigError("stereo.keypoints must be >= 0 (0 = off), keypoint_cell_px >= 1")
         self.cfg = stereo
-        self.volume_reach_m = float(np.hypot(volume.x_max, volume.y_half))
-        crop = VolumeCrop.from_config(volume, stereo.below_volume_m)
+        seen = volume.seen()  # and the lookahead beyond it
+        self.volume_reach_m = float(np.hypot(seen.x_max, seen.y_half))
+        crop = VolumeCrop.from_config(seen, stereo.below_volume_m)
         bias = (stereo.disparity_offset_px, stereo.disparity_edge_px)
         ramps = None
         if stereo.ramp_step_px > 0.0:

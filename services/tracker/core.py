@@ -32,6 +32,7 @@ identity), but the filter is not corrected and the moving labels are held until 
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -182,7 +183,7 @@ class Tracker:
             measurement_std=t.measurement_noise,
             range_noise_per_m2=t.range_noise_per_m2,
             initial_velocity_std=(t.initial_speed_std, t.initial_speed_std, t.initial_vertical_speed_std),
-            volume=cfg.volume,
+            volume=cfg.volume.seen(),  # a cluster is cut where the mapper's lookahead ends
             noise_adaptation=t.noise_adaptation,
             appearance_smoothing=t.appearance_smoothing,
             frame_period_s=t.frame_period_s,
@@ -232,6 +233,8 @@ class Tracker:
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:
         """One frame of clusters (world frame) and its egomotion -> every track as an obstacle."""
+        if clusters.beyond:  # the lookahead's are followed as the volume's are (VolumeConfig.lookahead_m)
+            clusters = dataclasses.replace(clusters, clusters=[*clusters.clusters, *clusters.beyond], beyond=[])
         stale, new_world = self.guard.stale(clusters)
         if new_world:
             self.tracks = TrackTable()

@@ -32,7 +32,7 @@ import numpy.typing as npt
 from common.config import Config, VolumeConfig
 from common.errors import ConfigError, InputError
 from common.geometry import transform
-from common.messages import Clusters, EgoMotion, PointCloud
+from common.messages import Cluster, Clusters, EgoMotion, PointCloud
 from services.voxel_mapper.apart import NEVER_APART, Apart, ApartRule, PartMotion
 from services.voxel_mapper.flood_fill import flood_fill, touching_pairs
 from services.voxel_mapper.groups import split_groups
@@ -85,6 +85,7 @@ class VoxelMapper:
             raise ConfigError(f"voxel.edge must be > 0, got {edge}")
         self.map = VoxelMap(edge, keep_frames, circular_hue=circular_hue)
         self.volume = volume
+        self.seen = volume.seen()  # mapped and clustered: the volume and its lookahead beyond
         self.ground = ground
         self.epsilon = epsilon
         self.min_cluster_voxels = min_cluster_voxels
@@ -107,10 +108,11 @@ class VoxelMapper:
     @classmethod
     def from_config(cls, cfg: Config) -> VoxelMapper:
         v, vol = cfg.voxel, cfg.volume
+        seen = vol.seen()
         if v.ground == "flat":
             ground: Ground = FlatGround()
         elif v.ground == "terrain":
-            ground = TerrainProfile(x_min=vol.x_min, x_max=vol.x_max, z_min=vol.z_min - 1.0, z_max=vol.z_max,
+            ground = TerrainProfile(x_min=seen.x_min, x_max=seen.x_max, z_min=seen.z_min - 1.0, z_max=seen.z_max,
                                     slice_m=v.terrain_slice, max_grade=v.terrain_max_grade)
         else:
             raise ConfigError(f"voxel.ground must be 'flat' or 'terrain', got {v.ground!r}")
@@ -151,10 +153,21 @@ class VoxelMapper:
         labels, n_clusters = split_groups(labels, n_clusters, self.map.coords, self.map.hits, *self.groups,
                                           self.map.edge)
         on = self._corners_on_clusters(np.asarray(cloud.keypoint_ids), corner_slots, labels)
-        return Clusters(frame_id=cloud.frame_id, stamp_ns=cloud.stamp_ns, clusters=describe(self.map, labels, height),
+        inside, beyond = self._split_beyond(describe(self.map, labels, height), ego.pose)
+        return Clusters(frame_id=cloud.frame_id, stamp_ns=cloud.stamp_ns, clusters=inside,
                         voxel_edge=self.map.edge, world_epoch=ego.world_epoch, ego_pose=np.array(ego.pose),
                         voxel_count=self.map.n, view=view_limits(cloud), keypoint_ids=cloud.keypoint_ids[on],
-                        keypoints=corners[on], keypoint_std=cloud.keypoint_std[on])
+                        keypoints=corners[on], keypoint_std=cloud.keypoint_std[on], beyond=beyond)
+
+    def _split_beyond(self, clusters: list[Cluster], pose: npt.NDArray[np.float64]
+                      ) -> tuple[list[Cluster], list[Cluster]]:
+        """The clusters centred in the volume, and those centred beyond its far end (in the lookahead)."""
+        if self.seen.x_max <= self.volume.x_max or not clusters:
+            return clusters, []
+        ahead = (np.array([c.centroid for c in clusters]) - pose[:3, 3]) @ pose[:3, 0]  # vehicle x
+        far = ahead > self.volume.x_max
+        return ([c for c, f in zip(clusters, far, strict=True) if not f],
+                [c for c, f in zip(clusters, far, strict=True) if f])
 
     def _apart(self, cloud: PointCloud, corners: npt.NDArray[np.float64], slots: npt.NDArray[np.int64],
                candidate: npt.NDArray[np.bool_], labels: npt.NDArray[np.int32], n_parts: int, ego: EgoMotion
@@ -224,7 +237,7 @@ class VoxelMapper:
                     ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float64]]:
         """Voxels inside the volume of interest and above the road (judged in this vehicle frame), and every
         voxel's height above the road."""
-        vol = self.volume
+        vol = self.seen
         offset = self.map.centroids - pose[:3, 3]
         rot = pose[:3, :3]  # world -> vehicle frame is offset @ rot, written out to stay off BLAS threads
         local = offset[:, 0:1] * rot[0] + offset[:, 1:2] * rot[1] + offset[:, 2:3] * rot[2]
