@@ -67,7 +67,9 @@ def test_raw_import_frames_pose_lidar_and_info(tmp_path: Path) -> None:
     assert (cfg.odometry.disparity_offset_px, cfg.odometry.disparity_edge_px, cfg.volume.x_max) == (0.16, 1.3, 45.0)
     assert (cfg.stereo.disparity_offset_px, cfg.stereo.disparity_edge_px) == (0.16, 1.3)  # the points' depths too
     assert config_for(reader, sets=["odometry.disparity_offset_px=0"]).odometry.disparity_offset_px == 0.0
-    assert info["volume"] == {"x_min": 0.0, "x_max": 45.0, "y_half": 10.0, "z_min": 0.0, "z_max": 3.5, "lookahead_m": 1.5}
+    assert info["volume"] == {
+        "x_min": 0.0, "x_max": 45.0, "y_half": 10.0, "z_min": 0.0, "z_max": 3.5, "lookahead_m": 1.5
+    }  # fmt: skip
     assert np.allclose(info["calib"]["cam_to_vehicle"], [[0, 0, 1, 0], [-1, 0, 0, 0], [0, -1, 0, 1.65], [0, 0, 0, 1]])
     stamps = [msgs[StereoFrame][k].stamp_ns for k in range(3)]
     assert all(0.09e9 < b - a < 0.11e9 for a, b in itertools.pairwise(stamps))
