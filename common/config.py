@@ -176,6 +176,11 @@ class VoxelConfig:
     points_range_m: float = 15.0  # beyond this range min_points_per_voxel falls with range squared (0 = fixed)
     min_points_far: int = 2  # ... but never below this
     join_min_voxels: int = 6  # smallest parts joined into one object (0 = min_cluster_voxels; 8 until session 46)
+    # which linked parts are one object: "builtin" (trees trained on tuning runs, join_model.py), a model
+    # file, or "" for join_share's rule alone
+    join_model: str = ""
+    join_probability: float = 0.5  # ... the model's chance above which linked parts are joined, rule or not
+    join_veto: float = 0.0  # ... and below which the rule's joins are not made (0: the model only adds)
     cut_tall_m: float = 2.8  # in a cluster this tall, a patch of columns ending below cut_low_m is cut off (0 = off)
     cut_low_m: float = 2.0  # measured 2.0..2.5 and 2.5..3.0 m tall: within 1 point on urban seeds 1-2
     cut_min_voxels: int = 12
@@ -360,7 +365,7 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
             raise ConfigError(f"{where}: expected an integer, got {value!r}")
         return out
     if hint is str:
-        return str(value)
+        return "" if value is None else str(value)  # "key=" on the command line: the empty string
     raise ConfigError(f"{where}: unsupported type {hint!r}")
 
 

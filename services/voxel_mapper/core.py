@@ -26,6 +26,9 @@ and the compiled map update is one hash insert per point (~30 ns) where numpy wo
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import numpy as np
 import numpy.typing as npt
 
@@ -36,7 +39,8 @@ from common.messages import Cluster, Clusters, EgoMotion, PointCloud
 from services.voxel_mapper.apart import NEVER_APART, Apart, ApartRule, PartMotion
 from services.voxel_mapper.flood_fill import flood_fill, touching_pairs
 from services.voxel_mapper.groups import split_groups
-from services.voxel_mapper.linkage import join_parts
+from services.voxel_mapper.join_model import JoinModel, load_join_model
+from services.voxel_mapper.linkage import Learned, join_parts
 from services.voxel_mapper.refinement import aggregate, remove_noise
 from services.voxel_mapper.skyline import cut_low_parts
 from services.voxel_mapper.summary import describe
@@ -70,6 +74,20 @@ def view_limits(cloud: PointCloud) -> npt.NDArray[np.float64]:
     return np.array([origin[0], origin[1], slope.max(), slope.min()])
 
 
+@dataclass(frozen=True)
+class PartsSeen:
+    """The flood fill's parts of one frame, before any are joined: what scripts/train_join_model.py learns from."""
+
+    vmap: VoxelMap
+    labels: npt.NDArray[np.int32]
+    n_parts: int
+    position: npt.NDArray[np.float64]  # the camera's (world)
+    height: npt.NDArray[np.float64]  # each map slot's above the road
+    min_voxels: int  # parts smaller than this are never joined (voxel.join_min_voxels)
+    bridge_voxels: int
+    step_voxels: int
+
+
 class VoxelMapper:
     """Pure core of the voxel_mapper service: PointCloud + EgoMotion -> Clusters."""
 
@@ -80,7 +98,8 @@ class VoxelMapper:
                  join_min_voxels: int = 0, cut_tall_m: float = 0.0, cut_low_m: float = 2.2,
                  cut_min_voxels: int = 12, step_voxels: int = 0, group_dense_share: float = 0.0,
                  group_min_voxels: int = 40, aggregate_in_turn_m: float = 0.0, circular_hue: bool = False,
-                 apart: ApartRule = NEVER_APART) -> None:
+                 apart: ApartRule = NEVER_APART, join_model: JoinModel | None = None,
+                 join_probability: float = 0.5, join_veto: float = 0.0) -> None:
         if edge <= 0.0:
             raise ConfigError(f"voxel.edge must be > 0, got {edge}")
         self.map = VoxelMap(edge, keep_frames, circular_hue=circular_hue)
@@ -99,6 +118,10 @@ class VoxelMapper:
         self.points_range = points_range_m
         self.min_points_far = min_points_far
         self.join_min = join_min_voxels if join_min_voxels > 0 else min_cluster_voxels
+        self.join_model = join_model
+        self.join_probability = join_probability
+        self.join_veto = join_veto
+        self.parts_seen: Callable[[PartsSeen], None] | None = None  # shown the flood fill's parts (training)
         self.cut = (cut_tall_m, cut_low_m, cut_min_voxels)
         self.groups = (group_dense_share, group_min_voxels)
         self.epoch: int | None = None
@@ -126,7 +149,9 @@ class VoxelMapper:
                    group_dense_share=v.group_dense_share, group_min_voxels=v.group_min_voxels,
                    aggregate_in_turn_m=v.aggregate_in_turn_m, circular_hue=v.circular_hue,
                    apart=ApartRule(v.apart_min_corners, v.apart_across_mps, v.apart_sigma_k, v.apart_still_mps,
-                                   v.apart_samples, cfg.tracker.corner_across_std_m))
+                                   v.apart_samples, cfg.tracker.corner_across_std_m),
+                   join_model=load_join_model(v.join_model), join_probability=v.join_probability,
+                   join_veto=v.join_veto)
 
     def process(self, cloud: PointCloud, ego: EgoMotion) -> Clusters:
         """Update the map with one frame and cluster the voxels above the road."""
@@ -140,8 +165,13 @@ class VoxelMapper:
         corners = transform(ego.pose, np.asarray(cloud.keypoints, dtype=np.float64))
         corner_slots = self.map.slots_at(corners)  # the map's voxels stay as they are from here on
         apart = self._apart(cloud, corners, corner_slots, candidate, labels, n_clusters, ego)
+        if self.parts_seen is not None:
+            self.parts_seen(PartsSeen(self.map, labels, n_clusters, ego.pose[:3, 3], height, self.join_min,
+                                      self.bridge_voxels, self.step_voxels))
+        learned = None if self.join_model is None else Learned(self.join_model, self.join_probability, height,
+                                                                   self.join_veto)
         labels = join_parts(self.map, labels, n_clusters, ego.pose[:3, 3], self.join_min,
-                            self.join_share, self.bridge_voxels, self.step_voxels, apart)
+                            self.join_share, self.bridge_voxels, self.step_voxels, apart, learned)
         if self.cut[0] > 0.0:
             labels, n_clusters = cut_low_parts(labels, n_clusters, self.map.coords, height, *self.cut)
         pairs = touching_pairs(self.map, labels)

@@ -32,6 +32,8 @@ went from 12 to 20; 62 % with parts joined from 8 voxels, docs/results/voxel.md)
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numba
 import numpy as np
 import numpy.typing as npt
@@ -39,6 +41,8 @@ import numpy.typing as npt
 from common.voxel_keys import BITS, FIELD, OFFSET
 from services.voxel_mapper.apart import Apart
 from services.voxel_mapper.flood_fill import DELTAS
+from services.voxel_mapper.join_model import JoinModel
+from services.voxel_mapper.part_pairs import LinkCounts, pair_features
 from services.voxel_mapper.voxel_map import EMPTY, VoxelMap, find, pack
 
 I32 = npt.NDArray[np.int32]
@@ -111,6 +115,16 @@ def _links(members: npt.NDArray[np.int64], labels: I32, keys: npt.NDArray[np.int
     return out[:n]
 
 
+@dataclass(frozen=True)
+class Learned:
+    """A learned linkage for one frame: the model, how sure it must be, and each map slot's height above the road."""
+
+    model: JoinModel
+    min_probability: float  # linked parts it is surer than this are one object are joined, whatever the rule says
+    height: npt.NDArray[np.float64]
+    veto_below: float = 0.0  # ... and the rule's joins it is less sure of than this are not
+
+
 def _root(parent: npt.NDArray[np.int64], x: int) -> int:
     while parent[x] != x:
         parent[x] = parent[parent[x]]
@@ -121,6 +135,34 @@ def _root(parent: npt.NDArray[np.int64], x: int) -> int:
 def _pairs(links: npt.NDArray[np.int64], n_clusters: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
     """Distinct (a, b) pairs packed as a * n + b, and how many voxels of a link to b."""
     return np.unique(links[:, 0] * n_clusters + links[:, 1], return_counts=True)
+
+
+def _judged(learned: Learned, vmap: VoxelMap, labels: I32, members: npt.NDArray[np.int64], n_clusters: int,
+            position: npt.NDArray[np.float64], direct: LinkCounts, stepped: LinkCounts, big: npt.NDArray[np.bool_],
+            xs: npt.NDArray[np.int64], ys: npt.NDArray[np.int64]) -> tuple[npt.NDArray[np.int64], ...]:
+    """The rule's joins the model does not doubt, and the linked pairs it is sure of; its chance as their strength."""
+    a, b, rows = pair_features(vmap, labels, members, n_clusters, position, learned.height, direct, stepped)
+    chance = learned.model.probability(rows)
+    keys = a * n_clusters + b  # sorted: pair_features gives them in order
+    ruled = np.minimum(xs, ys) * n_clusters + np.maximum(xs, ys)
+    by_rule = np.zeros(len(keys), dtype=bool)
+    if len(keys):
+        by_rule[np.searchsorted(keys, ruled)] = True  # every pair the rule joins is a linked pair
+    keep = big[a] & big[b] & ((by_rule & (chance >= learned.veto_below)) | (chance > learned.min_probability))
+    return a[keep], b[keep], chance[keep]
+
+
+def part_links(vmap: VoxelMap, labels: I32, members: npt.NDArray[np.int64], n_clusters: int,
+               position: npt.NDArray[np.float64], bridge_voxels: int,
+               step_voxels: int) -> tuple[LinkCounts, LinkCounts]:
+    """Voxel links between parts: through neighbours and bridges, and step links (none if ``step_voxels`` is 0)."""
+    sight = vmap.centroids[members, :2] - position[:2]
+    sight = np.ascontiguousarray(sight / np.maximum(np.hypot(sight[:, 0], sight[:, 1]), 1e-9)[:, None])
+    table = (vmap.keys, vmap.table_keys, vmap.table_slots, vmap.shift)
+    direct = _pairs(_links(members, labels, *table, DELTAS, sight, int(bridge_voxels), 0), n_clusters)
+    if step_voxels <= 0:
+        return direct, (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+    return direct, _pairs(_links(members, labels, *table, NO_DELTAS, sight, 0, int(step_voxels)), n_clusters)
 
 
 def _join_unless_apart(parent: npt.NDArray[np.int64], xs: npt.NDArray[np.int64], ys: npt.NDArray[np.int64],
@@ -143,29 +185,31 @@ def _join_unless_apart(parent: npt.NDArray[np.int64], xs: npt.NDArray[np.int64],
 
 
 def join_parts(vmap: VoxelMap, labels: I32, n_clusters: int, position: npt.NDArray[np.float64], min_voxels: int,
-               min_share: float, bridge_voxels: int, step_voxels: int = 0, apart: Apart | None = None) -> I32:
+               min_share: float, bridge_voxels: int, step_voxels: int = 0, apart: Apart | None = None,
+               learned: Learned | None = None) -> I32:
     """Labels with strongly linked big clusters given one label (see the module text); no two parts
-    that ``apart`` keeps apart end in one, nor do the objects they were joined into first."""
+    that ``apart`` keeps apart end in one, nor do the objects they were joined into first. With
+    ``learned``, its model may join linked big parts the rule leaves apart, and part those it joins."""
     members = np.flatnonzero(labels >= 0)
-    if members.size == 0 or min_share > 1.0:
+    if members.size == 0 or (min_share > 1.0 and learned is None):
         return labels
-    sight = vmap.centroids[members, :2] - position[:2]
-    sight = np.ascontiguousarray(sight / np.maximum(np.hypot(sight[:, 0], sight[:, 1]), 1e-9)[:, None])
-    table = (vmap.keys, vmap.table_keys, vmap.table_slots, vmap.shift)
     sizes = np.bincount(labels[members], minlength=n_clusters)
     big = sizes >= min_voxels
-    packed, counts = _pairs(_links(members, labels, *table, DELTAS, sight, int(bridge_voxels), 0), n_clusters)
+    direct, stepped = part_links(vmap, labels, members, n_clusters, position, bridge_voxels, step_voxels)
+    packed, counts = direct
     a, b = packed // n_clusters, packed % n_clusters
     strong = big[a] & big[b] & (counts >= min_share * sizes[a])
     joins = [(a[strong], b[strong], counts[strong] / sizes[a[strong]])]
     if step_voxels > 0:
         # a step link must be seen from both parts: a car's roof links up to a hedge behind it too,
         # but the hedge stands on the road and has no bottom in the air to look back down from
-        packed, counts = _pairs(_links(members, labels, *table, NO_DELTAS, sight, 0, int(step_voxels)), n_clusters)
+        packed, counts = stepped
         a, b = packed // n_clusters, packed % n_clusters
         strong = big[a] & big[b] & (counts >= min_share * sizes[a]) & np.isin(b * n_clusters + a, packed)
         joins.append((a[strong], b[strong], counts[strong] / sizes[a[strong]]))
     xs, ys, shares = (np.concatenate(j) for j in zip(*joins, strict=True))
+    if learned is not None:
+        xs, ys, shares = _judged(learned, vmap, labels, members, n_clusters, position, direct, stepped, big, xs, ys)
     parent = np.arange(n_clusters)
     if apart is None:
         for x, y in zip(xs, ys, strict=True):

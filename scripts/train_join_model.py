@@ -1,0 +1,164 @@
+"""Train the learned linkage (``voxel.join_model``) on runs with ground truth, and export it as JSON.
+
+    .venv/bin/python scripts/measure.py --out /tmp/tune --seeds 1,2,3,4,5,6 --only urban,crossing,overtake,slope
+    .venv/bin/python scripts/train_join_model.py --out services/voxel_mapper/join_model.json /tmp/tune/*_run.mcap
+
+Each run's clouds go through the voxel mapper again. At every frame the flood fill's parts that
+the linkage links (both ways, through neighbours, bridges and steps, both at least
+``voxel.join_min_voxels``) become rows of ``part_pairs.FEATURES``. Each voxel belongs to the true
+object whose box is nearest it, within ``OWNER_REACH_M`` (a walker's smear goes with the walker), and
+a part to the object most of its voxels belong to; a pair is one object when both parts belong to
+the same one, two when they belong to different ones, and is left out when either belongs to
+none. The model is scikit-learn's ``HistGradientBoostingClassifier`` (the ``dev`` extra), with
+both answers weighed alike: three in four linked pairs are one object, and the rarer mistake, two
+objects joined, is the one that loses walkers. The file holds the trees' nodes, walked by
+``services/voxel_mapper/join_model.py``; nothing is pickled.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "scripts"))
+
+from sweep_tracker import load_run  # noqa: E402
+
+from common.progress import progress  # noqa: E402
+from services.pipeline import config_for  # noqa: E402
+from services.voxel_mapper import VoxelMapper  # noqa: E402
+from services.voxel_mapper.core import PartsSeen  # noqa: E402
+from services.voxel_mapper.linkage import part_links  # noqa: E402
+from services.voxel_mapper.part_pairs import FEATURES, pair_features  # noqa: E402
+
+F64 = npt.NDArray[np.float64]
+#: a voxel this near an object's box (m) is that object's: smear beside a walker is the walker's.
+OWNER_REACH_M: float = 1.5
+#: the trees' settings (scikit-learn's names); early stopping picks how many, on a tenth of the rows.
+TREES: dict[str, Any] = {"max_iter": 200, "max_depth": 6, "class_weight": "balanced", "random_state": 0}
+
+Box = tuple[F64, F64, float]  # centre (world), size (length, width, height), yaw
+
+
+def owners(points: F64, boxes: list[Box]) -> npt.NDArray[np.int64]:
+    """Index of the box each point is nearest (distance outside it, 0 inside), within the reach; -1 for none.
+
+    Where boxes nest (a bin inside a kiosk's box), the smaller one wins: a tiny share of its size
+    is added to every distance.
+    """
+    owner = np.full(len(points), -1, dtype=np.int64)
+    best = np.full(len(points), np.inf)
+    for i, (centre, size, yaw) in enumerate(boxes):
+        d = points - centre
+        c, s = np.cos(yaw), np.sin(yaw)
+        outside = np.column_stack([
+            np.abs(d[:, 0] * c + d[:, 1] * s) - size[0] / 2,
+            np.abs(-d[:, 0] * s + d[:, 1] * c) - size[1] / 2,
+            np.abs(d[:, 2]) - size[2] / 2,
+        ])  # fmt: skip
+        dist = np.linalg.norm(np.maximum(outside, 0.0), axis=1) + 1e-3 * float(np.prod(size)) ** (1 / 3)
+        take = (dist < OWNER_REACH_M) & (dist < best)
+        owner[take], best[take] = i, dist[take]
+    return owner
+
+
+def labelled_pairs(seen: PartsSeen, boxes: list[Box]) -> tuple[F64, npt.NDArray[np.bool_]]:
+    """This frame's rows of linked big parts that both lie on an object, and whether it is the same one."""
+    members = np.flatnonzero(seen.labels >= 0)
+    empty = (np.zeros((0, len(FEATURES))), np.zeros(0, dtype=bool))
+    if members.size == 0:
+        return empty
+    direct, stepped = part_links(seen.vmap, seen.labels, members, seen.n_parts, seen.position,
+                                 seen.bridge_voxels, seen.step_voxels)
+    a, b, rows = pair_features(seen.vmap, seen.labels, members, seen.n_parts, seen.position, seen.height,
+                               direct, stepped)
+    lab = seen.labels[members]
+    own = owners(seen.vmap.centroids[members], boxes)
+    votes = np.zeros((seen.n_parts, len(boxes) + 1), dtype=np.int64)
+    np.add.at(votes, (lab, own + 1), 1)
+    votes[:, 0] = 0  # unowned voxels do not vote
+    part_owner = np.where(votes.max(axis=1) > 0, votes.argmax(axis=1) - 1, -1)
+    sizes = np.bincount(lab, minlength=seen.n_parts)
+    keep = (sizes[a] >= seen.min_voxels) & (sizes[b] >= seen.min_voxels)
+    keep &= (part_owner[a] >= 0) & (part_owner[b] >= 0)
+    return rows[keep], (part_owner[a] == part_owner[b])[keep]
+
+
+def run_rows(path: Path) -> tuple[F64, npt.NDArray[np.bool_]]:
+    """Every frame's labelled rows of one run, its clouds mapped again with the configuration it was made with."""
+    run = load_run(path, "voxel_mapper")
+    mapper = VoxelMapper.from_config(config_for(run.reader, None, ["voxel.join_model="], stored=True))
+    rows: list[F64] = []
+    same: list[npt.NDArray[np.bool_]] = []
+    boxes: list[Box] = []
+
+    def collect(seen: PartsSeen) -> None:
+        x, y = labelled_pairs(seen, boxes)
+        rows.append(x)
+        same.append(y)
+
+    mapper.parts_seen = collect
+    for frame, cloud, ego in run.frames:
+        true_pose = run.inputs.true_poses.get(frame)
+        truth = run.inputs.truth.get(frame)
+        if true_pose is None or truth is None:
+            continue
+        to_estimate = np.asarray(ego.pose) @ np.linalg.inv(true_pose)  # truth into the mapper's world
+        turn = float(np.arctan2(to_estimate[1, 0], to_estimate[0, 0]))
+        boxes[:] = [(to_estimate[:3, :3] @ np.asarray(o.center) + to_estimate[:3, 3], np.asarray(o.size),
+                     float(o.yaw) + turn) for o in truth.objects]
+        mapper.process(cloud, ego)
+    if not rows:
+        return np.zeros((0, len(FEATURES))), np.zeros(0, dtype=bool)
+    return np.concatenate(rows), np.concatenate(same)
+
+
+def export(model: Any) -> dict[str, Any]:
+    """A fitted HistGradientBoostingClassifier's trees as flat node arrays (join_model.JoinModel's file)."""
+    out: dict[str, list[Any]] = {key: [] for key in ("feature", "threshold", "left", "right", "leaf",
+                                                      "missing_left", "value", "roots")}
+    for (tree,) in model._predictors:  # one tree per iteration for two classes
+        nodes, base = tree.nodes, len(out["feature"])
+        out["roots"].append(base)
+        out["feature"] += nodes["feature_idx"].tolist()
+        out["threshold"] += nodes["num_threshold"].tolist()
+        out["left"] += (nodes["left"].astype(np.int64) + base).tolist()
+        out["right"] += (nodes["right"].astype(np.int64) + base).tolist()
+        out["leaf"] += nodes["is_leaf"].astype(bool).tolist()
+        out["missing_left"] += nodes["missing_go_to_left"].astype(bool).tolist()
+        out["value"] += nodes["value"].tolist()
+    return {"features": list(FEATURES), "baseline": float(np.ravel(model._baseline_prediction)[0]), **out}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("runs", nargs="+", type=Path, help="run recordings with ground truth (*_run.mcap)")
+    parser.add_argument("--out", type=Path, required=True, help="the model file to write (JSON)")
+    args = parser.parse_args(argv)
+    from sklearn.ensemble import HistGradientBoostingClassifier  # the dev extra: training only
+
+    rows, same = [], []
+    for path in progress(args.runs, len(args.runs), "mapping runs"):
+        x, y = run_rows(path)
+        rows.append(x)
+        same.append(y)
+    x, y = np.concatenate(rows), np.concatenate(same)
+    if len(np.unique(y)) < 2:
+        print(f"train_join_model: {len(y)} pairs, all one answer; nothing to learn", file=sys.stderr)
+        return 1
+    model = HistGradientBoostingClassifier(**TREES).fit(x, y)
+    args.out.write_text(json.dumps(export(model), separators=(",", ":")) + "\n")
+    print(f"{len(y)} linked pairs, {100 * y.mean():.1f} % one object; {model.n_iter_} trees -> {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
