@@ -177,10 +177,11 @@ class VoxelConfig:
     min_points_far: int = 2  # ... but never below this
     join_min_voxels: int = 6  # smallest parts joined into one object (0 = min_cluster_voxels; 8 until session 46)
     # which linked parts are one object: "builtin" (trees trained on tuning runs, join_model.py), a model
-    # file, or "" for join_share's rule alone
-    join_model: str = ""
-    join_probability: float = 0.5  # ... the model's chance above which linked parts are joined, rule or not
-    join_veto: float = 0.0  # ... and below which the rule's joins are not made (0: the model only adds)
+    # file, or "" for join_share's rule alone (until session 53; docs/results/voxel.md, "Session 53")
+    join_model: str = "builtin"
+    join_probability: float = 0.8  # ... the model's chance above which linked parts are joined, rule or not
+    join_veto: float = 0.5  # ... and below which the rule's joins are not made (0: the model only adds;
+    # over 1: the model alone decides)
     cut_tall_m: float = 2.8  # in a cluster this tall, a patch of columns ending below cut_low_m is cut off (0 = off)
     cut_low_m: float = 2.0  # measured 2.0..2.5 and 2.5..3.0 m tall: within 1 point on urban seeds 1-2
     cut_min_voxels: int = 12

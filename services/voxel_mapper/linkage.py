@@ -142,13 +142,15 @@ def _judged(learned: Learned, vmap: VoxelMap, labels: I32, members: npt.NDArray[
             xs: npt.NDArray[np.int64], ys: npt.NDArray[np.int64]) -> tuple[npt.NDArray[np.int64], ...]:
     """The rule's joins the model does not doubt, and the linked pairs it is sure of; its chance as their strength."""
     a, b, rows = pair_features(vmap, labels, members, n_clusters, position, learned.height, direct, stepped)
+    judged = big[a] & big[b]  # only big parts are ever joined here: the rest is left to the aggregation
+    a, b, rows = a[judged], b[judged], rows[judged]
     chance = learned.model.probability(rows)
     keys = a * n_clusters + b  # sorted: pair_features gives them in order
     ruled = np.minimum(xs, ys) * n_clusters + np.maximum(xs, ys)
     by_rule = np.zeros(len(keys), dtype=bool)
     if len(keys):
-        by_rule[np.searchsorted(keys, ruled)] = True  # every pair the rule joins is a linked pair
-    keep = big[a] & big[b] & ((by_rule & (chance >= learned.veto_below)) | (chance > learned.min_probability))
+        by_rule[np.searchsorted(keys, ruled)] = True  # every pair the rule joins is a linked pair of big parts
+    keep = (by_rule & (chance >= learned.veto_below)) | (chance > learned.min_probability)
     return a[keep], b[keep], chance[keep]
 
 

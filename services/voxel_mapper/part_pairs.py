@@ -68,28 +68,27 @@ def pair_features(vmap: VoxelMap, labels: npt.NDArray[np.int32], members: I64, n
         return a, b, np.zeros((0, len(FEATURES)))
 
     lab = labels[members]
-    centres = vmap.centroids[members]
+    order = np.argsort(lab, kind="stable")  # each part's voxels together, for reduceat
+    slots, lab = members[order], lab[order]
+    present, starts = np.unique(lab, return_index=True)
+    centres = vmap.centroids[slots]
+    up = height[slots]
+    ranges = np.hypot(centres[:, 0] - position[0], centres[:, 1] - position[1])
+
+    def per_part(values: F64, reduce: np.ufunc, fill: float) -> F64:
+        out = np.full((n_parts, *values.shape[1:]), fill)
+        out[present] = reduce.reduceat(values, starts, axis=0)
+        return out
+
     sizes = np.bincount(lab, minlength=n_parts).astype(np.float64)
-    sums = np.zeros((n_parts, vmap.stats.shape[1]))
-    np.add.at(sums, lab, vmap.stats[members])
+    sums = per_part(vmap.stats[slots], np.add, 0.0)
     sums[sizes == 0, 0] = 1.0  # parts with no voxel left (never in a pair) must not divide by zero
     rgb = colour_stats(sums, "rgb")[0]
     hsl = colour_stats(sums, "hsl", vmap.circular_hue)[0]
-    middle = np.zeros((n_parts, 2))
-    np.add.at(middle, lab, centres[:, :2])
-    middle /= np.maximum(sizes, 1.0)[:, None]
-    lo = np.full((n_parts, 3), np.inf)
-    hi = np.full((n_parts, 3), -np.inf)
-    np.minimum.at(lo, lab, centres)
-    np.maximum.at(hi, lab, centres)
-    up = height[members]
-    floor = np.full(n_parts, np.inf)
-    top = np.full(n_parts, -np.inf)
-    np.minimum.at(floor, lab, up)
-    np.maximum.at(top, lab, up)
-    dist = np.zeros(n_parts)
-    np.add.at(dist, lab, np.hypot(centres[:, 0] - position[0], centres[:, 1] - position[1]))
-    dist /= np.maximum(sizes, 1.0)
+    middle = per_part(centres[:, :2], np.add, 0.0) / np.maximum(sizes, 1.0)[:, None]
+    lo, hi = per_part(centres, np.minimum, np.inf), per_part(centres, np.maximum, -np.inf)
+    floor, top = per_part(up, np.minimum, np.inf), per_part(up, np.maximum, -np.inf)
+    dist = per_part(ranges, np.add, 0.0) / np.maximum(sizes, 1.0)
 
     small = np.where(sizes[a] <= sizes[b], a, b)
     big = np.where(sizes[a] <= sizes[b], b, a)
