@@ -1,7 +1,13 @@
 """Train the learned linkage (``voxel.join_model``) on runs with ground truth, and export it as JSON.
 
-    .venv/bin/python scripts/measure.py --out /tmp/tune --seeds 1,2,3,4,5,6 --only urban,crossing,overtake,slope
+    .venv/bin/python scripts/measure.py --out /tmp/tune --seeds 1,2,3,4,5,6,23,24,25,26,27,28 \\
+        --only urban,crossing,overtake,slope
     .venv/bin/python scripts/train_join_model.py --out services/voxel_mapper/join_model.json /tmp/tune/*_run.mcap
+
+The bundled model was trained so in session 53, on those 48 runs: the tuning seeds 1-6 and six
+more (23-28) that no evaluation uses; seeds 7-22 are the held-out, fresh and unseen sets
+(docs/results/voxel.md, "Session 53"). Training is deterministic for a given list of runs in a
+given order.
 
 Each run's clouds go through the voxel mapper again. At every frame the flood fill's parts that
 the linkage links (both ways, through neighbours, bridges and steps, both at least

@@ -19,6 +19,8 @@ from services.voxel_mapper.overhang import Overhang, frame_rows, overhangs
 from services.voxel_mapper.terrain import TerrainProfile
 
 RED, BLUE, GREY, GREEN, GLASS = (200, 40, 30), (30, 50, 190), (110, 110, 105), (40, 190, 60), (60, 70, 90)
+#: no linkage of parts at all, neither the share rule nor the learned one: the flood fill's colours alone
+COLOUR_ALONE: dict[str, object] = {"join_share": 2.0, "join_model": ""}
 
 
 def box(lo: tuple[float, float, float], hi: tuple[float, float, float], colour: tuple[int, int, int],
@@ -105,9 +107,9 @@ def test_touching_boxes_of_one_colour_are_one_cluster() -> None:
 def test_reds_either_side_of_hue_zero_are_one_colour_with_circular_hue() -> None:
     # Hue 0.02 and 0.98 are both red: read as numbers they differ by nearly the whole circle.
     warm, cool = box((6, -1, 0), (8, 1, 1.5), (200, 50, 20)), box((8, -1, 0), (10, 1, 1.5), (200, 20, 50), seed=5)
-    plain = mapper(join_share=2.0, join_model="").process(cloud(road(), warm, cool), ego()).clusters  # the paper's reading
+    plain = mapper(**COLOUR_ALONE).process(cloud(road(), warm, cool), ego()).clusters  # the paper's reading
     assert len(plain) >= 2  # (and the voxels where they meet average to a cyan of their own)
-    out = mapper(join_share=2.0, join_model="", circular_hue=True).process(cloud(road(), warm, cool), ego())
+    out = mapper(**COLOUR_ALONE, circular_hue=True).process(cloud(road(), warm, cool), ego())
     assert len(out.clusters) == 1
     hue, spread = out.clusters[0].color_mean_hsl[0], out.clusters[0].color_var_hsl[0]
     assert min(hue, 1.0 - hue) < 0.02  # red, not the cyan a plain mean of 0.02 and 0.98 gives
@@ -117,14 +119,14 @@ def test_reds_either_side_of_hue_zero_are_one_colour_with_circular_hue() -> None
 def test_a_grey_wall_has_no_hue_to_split_it_with_circular_hue() -> None:
     # Noise of a few grey levels gives each point of a grey an arbitrary hue.
     wall = box((8, -4, 0), (8.5, 4, 2.5), (108, 108, 108), seed=7)
-    out = mapper(join_share=2.0, join_model="", circular_hue=True).process(cloud(road(), wall), ego())
+    out = mapper(**COLOUR_ALONE, circular_hue=True).process(cloud(road(), wall), ego())
     assert len(out.clusters) == 1
     assert out.clusters[0].color_var_hsl[0] > 0.5  # the hues cancel out: a spread, not a colour
 
 
 def test_a_car_of_paint_and_glass_is_one_cluster() -> None:
     body, cabin = box((6, -0.9, 0.25), (10.3, 0.9, 0.9), RED), box((7.0, -0.8, 0.95), (9.4, 0.8, 1.45), GLASS)
-    assert len(mapper(join_share=2.0, join_model="").process(cloud(road(), body, cabin), ego()).clusters) >= 2  # colour alone
+    assert len(mapper(**COLOUR_ALONE).process(cloud(road(), body, cabin), ego()).clusters) >= 2  # colour alone
     out = mapper().process(cloud(road(), body, cabin), ego())
     assert len(out.clusters) == 1
     assert out.clusters[0].bbox_max[2] == pytest.approx(1.45, abs=0.15)
@@ -134,7 +136,7 @@ def test_faces_apart_along_the_line_of_sight_are_one_cluster() -> None:
     """A boot's back and the rear window 0.7 m behind it, with the boot lid unseen (as from 20 m)."""
     back = box((20.0, -0.9, 0.3), (20.05, 0.9, 0.95), RED)
     window = box((20.7, -0.8, 0.95), (20.75, 0.8, 1.45), GLASS)
-    assert len(mapper(join_share=2.0, join_model="").process(cloud(road(), back, window), ego()).clusters) >= 2
+    assert len(mapper(**COLOUR_ALONE).process(cloud(road(), back, window), ego()).clusters) >= 2
     assert len(mapper().process(cloud(road(), back, window), ego()).clusters) == 1
 
 
@@ -174,7 +176,7 @@ def test_a_walker_of_two_small_colours_is_one_cluster() -> None:
     """Coat and trousers, 12 voxels each: parts below the noise limit are joined before it applies."""
     coat = box((10.05, -0.2, 1.0), (10.3, 0.2, 1.7), RED)
     legs = box((10.05, -0.2, 0.3), (10.3, 0.2, 0.95), BLUE)
-    parts = mapper(min_cluster_voxels=1, join_share=2.0, join_model="").process(cloud(road(), coat, legs), ego())
+    parts = mapper(min_cluster_voxels=1, **COLOUR_ALONE).process(cloud(road(), coat, legs), ego())
     assert sorted(c.voxel_count for c in parts.clusters) == [12, 12]
     # with no join and only big neighbours to aggregate into, both are dropped as noise
     assert mapper(join_min_voxels=20).process(cloud(road(), coat, legs), ego()).clusters == []
@@ -200,7 +202,7 @@ def test_a_walker_before_a_facade_of_his_colour_is_cut_off_by_the_skyline() -> N
 def test_small_cluster_touching_a_big_one_is_merged() -> None:
     rng = np.random.default_rng(4)
     patch_pts = (np.array([8.05, 0.05, 1.05]) + rng.random((40, 3)) * 0.15).astype(np.float32)  # one cell
-    alone = mapper(min_cluster_voxels=1, join_share=2.0, join_model="").process(cloud(road(), box((6, -1, 0), (8, 1, 1.5), RED),
+    alone = mapper(min_cluster_voxels=1, **COLOUR_ALONE).process(cloud(road(), box((6, -1, 0), (8, 1, 1.5), RED),
                                                        (patch_pts, noisy_colour(GREEN, 40))), ego())
     assert len(alone.clusters) == 2  # without refinement (nor joining) the green voxel is its own cluster
     patch = (patch_pts, noisy_colour(GREEN, 40))
@@ -216,13 +218,13 @@ def test_small_pieces_touching_only_each_other_add_up_to_a_cluster() -> None:
     legs = box((10.05, -0.2, 0.3), (10.3, 0.2, 0.95), BLUE)
     head = box((10.05, -0.1, 1.5), (10.3, 0.1, 1.7), GREEN)
     scene = cloud(road(), coat, legs, head)
-    pieces = mapper(min_cluster_voxels=1, join_share=2.0, join_model="").process(scene, ego())
+    pieces = mapper(min_cluster_voxels=1, **COLOUR_ALONE).process(scene, ego())
     assert len(pieces.clusters) == 3 and sum(c.voxel_count for c in pieces.clusters) >= 20
     assert all(c.voxel_count < 20 for c in pieces.clusters)
-    out = mapper(join_share=2.0, join_model="", aggregate_in_turn_m=20.0).process(scene, ego())
+    out = mapper(**COLOUR_ALONE, aggregate_in_turn_m=20.0).process(scene, ego())
     assert [c.voxel_count for c in out.clusters] == [sum(c.voxel_count for c in pieces.clusters)]
-    assert mapper(join_share=2.0, join_model="").process(scene, ego()).clusters == []  # only into a big one: all dropped
-    assert mapper(join_share=2.0, join_model="", aggregate_in_turn_m=9.0).process(scene, ego()).clusters == []  # he is at 10 m
+    assert mapper(**COLOUR_ALONE).process(scene, ego()).clusters == []  # only into a big one: all dropped
+    assert mapper(**COLOUR_ALONE, aggregate_in_turn_m=9.0).process(scene, ego()).clusters == []  # he is at 10 m
 
 
 def test_static_box_stays_fixed_in_the_world_while_the_vehicle_moves() -> None:
