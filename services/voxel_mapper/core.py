@@ -99,7 +99,7 @@ class VoxelMapper:
                  cut_min_voxels: int = 12, step_voxels: int = 0, group_dense_share: float = 0.0,
                  group_min_voxels: int = 40, aggregate_in_turn_m: float = 0.0, circular_hue: bool = False,
                  apart: ApartRule = NEVER_APART, join_model: JoinModel | None = None,
-                 join_probability: float = 0.5, join_veto: float = 0.0) -> None:
+                 join_probability: float = 0.8, join_veto: float = 0.5) -> None:
         if edge <= 0.0:
             raise ConfigError(f"voxel.edge must be > 0, got {edge}")
         self.map = VoxelMap(edge, keep_frames, circular_hue=circular_hue)

@@ -22,6 +22,12 @@ look back from). ``voxel.step_bridge_voxels`` 4 (1 m): on synthetic urban, cross
 seeds 1-2 objects in one cluster rose by 0 to 3.6 points with moving TP and FP unchanged; 2 gained
 0.5 at most, and 8 cost crossing seed 2 five points of moving TP (docs/results/voxel.md).
 
+Since session 53 a learned model judges the linked pairs too (``voxel.join_model``, join_model.py,
+part_pairs.py): the rule's join stands unless the model gives it under ``voxel.join_veto`` (0.5),
+and a linked pair it gives over ``voxel.join_probability`` (0.8) is joined whatever the share. The
+flood fill's parts are nearly pure; which are joined is what cost walkers their clusters (joined by
+the ground truth, held-out urban has 90 % of its objects in one cluster against 80 %).
+
 ``min_voxels`` here (``voxel.join_min_voxels``, 6) is below the noise limit on purpose: a walker
 seen from the front is 15-30 voxels split by colour into coat and trousers of 6-15 each, and
 with the noise limit (20) gating the join too, both parts were aggregated into a facade or dropped
@@ -120,7 +126,7 @@ class Learned:
     """A learned linkage for one frame: the model, how sure it must be, and each map slot's height above the road."""
 
     model: JoinModel
-    min_probability: float  # linked parts it is surer than this are one object are joined, whatever the rule says
+    min_probability: float  # linked parts it gives a higher chance of being one object are joined, rule or not
     height: npt.NDArray[np.float64]
     veto_below: float = 0.0  # ... and the rule's joins it is less sure of than this are not
 
