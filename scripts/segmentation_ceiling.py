@@ -1,6 +1,7 @@
 """How far the obstacle figures could go with the mapper's own voxels cut into objects by the truth.
 
-    .venv/bin/python scripts/segmentation_ceiling.py --mode truth /tmp/measure/urban-s*_run.mcap
+    .venv/bin/python scripts/segmentation_ceiling.py --mode truth /tmp/measure/urban-s*_run.mcap \\
+        [--set voxel.join_model=]
 
 Each run's clouds go through the mapper and the tracker again, with one of its steps handed to
 the ground truth, and are scored as ``evaluate`` scores them (in the paper's volume, as
@@ -32,7 +33,7 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "scripts"))
 
 from sweep_tracker import load_run, scenario  # noqa: E402
-from train_join_model import Box, owners  # noqa: E402
+from train_join_model import Box, owners, part_owners  # noqa: E402
 
 from common.config import VolumeConfig  # noqa: E402
 from common.evaluation.evaluate import Evaluation, obstacle_figures  # noqa: E402
@@ -91,10 +92,7 @@ class Oracle:
 
     def join(self, vmap: Any, labels: I32, n_clusters: int, *_: Any, **__: Any) -> I32:
         members = np.flatnonzero(labels >= 0)
-        votes = np.zeros((n_clusters, len(self.boxes) + 1), dtype=np.int64)
-        np.add.at(votes, (labels[members], owners(vmap.centroids[members], self.boxes) + 1), 1)
-        votes[:, 0] = 0
-        whose = np.where(votes.max(axis=1) > 0, votes.argmax(axis=1) - 1, -1)
+        whose = part_owners(vmap.centroids[members], labels[members], n_clusters, self.boxes)
         first = np.full(len(self.boxes) + 1, -1)
         root = np.arange(n_clusters)
         for part in range(n_clusters):
@@ -107,11 +105,11 @@ class Oracle:
         return out
 
 
-def run_figures(path: Path, oracle: Oracle) -> dict[str, Any]:
+def run_figures(path: Path, oracle: Oracle, sets: list[str]) -> dict[str, Any]:
     run = load_run(path, "voxel_mapper")
     if not run.name.startswith("kitti"):
         run.inputs.volume = VolumeConfig()  # the paper's volume, as measure.py scores
-    cfg = config_for(run.reader, None, [], stored=True)
+    cfg = config_for(run.reader, None, sets, stored=True)
     mapper, tracker = VoxelMapper.from_config(cfg), Tracker.from_config(cfg)
     run.inputs.obstacles = {}
     for frame, cloud, ego in run.frames:
@@ -133,12 +131,14 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", nargs="+", type=Path, help="run recordings with ground truth (*_run.mcap)")
     parser.add_argument("--mode", choices=("truth", "nearest", "joins"), required=True)
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="configuration over the run's own (session 53: voxel.join_model= for the share rule)")
     args = parser.parse_args(argv)
     oracle = Oracle(args.mode)
     oracle.install()
     pooled: dict[str, list[Any]] = defaultdict(list)
     for path in args.runs:
-        row = run_figures(path, oracle)
+        row = run_figures(path, oracle, args.set)
         pooled[scenario(row["name"])].append(row)
         print(f"{row['name']}: moving TP / FP / FN {row['tp']} / {row['fp']} / {row['fn']}, "
               f"speed RMSE {row['rmse']:.2f} m/s, one cluster {row['one'] or 0:.1f} %", flush=True)

@@ -76,6 +76,14 @@ def owners(points: F64, boxes: list[Box]) -> npt.NDArray[np.int64]:
     return owner
 
 
+def part_owners(points: F64, parts: npt.NDArray[np.int32], n_parts: int, boxes: list[Box]) -> npt.NDArray[np.int64]:
+    """Each part's object: the one most of its points are nearest (:func:`owners`); -1 where none is near."""
+    votes = np.zeros((n_parts, len(boxes) + 1), dtype=np.int64)
+    np.add.at(votes, (parts, owners(points, boxes) + 1), 1)
+    votes[:, 0] = 0  # points near no object do not vote
+    return np.where(votes.max(axis=1) > 0, votes.argmax(axis=1) - 1, -1)
+
+
 def labelled_pairs(seen: PartsSeen, boxes: list[Box]) -> tuple[F64, npt.NDArray[np.bool_]]:
     """This frame's rows of linked big parts that both lie on an object, and whether it is the same one."""
     members = np.flatnonzero(seen.labels >= 0)
@@ -87,11 +95,7 @@ def labelled_pairs(seen: PartsSeen, boxes: list[Box]) -> tuple[F64, npt.NDArray[
     a, b, rows = pair_features(seen.vmap, seen.labels, members, seen.n_parts, seen.position, seen.height,
                                direct, stepped)
     lab = seen.labels[members]
-    own = owners(seen.vmap.centroids[members], boxes)
-    votes = np.zeros((seen.n_parts, len(boxes) + 1), dtype=np.int64)
-    np.add.at(votes, (lab, own + 1), 1)
-    votes[:, 0] = 0  # unowned voxels do not vote
-    part_owner = np.where(votes.max(axis=1) > 0, votes.argmax(axis=1) - 1, -1)
+    part_owner = part_owners(seen.vmap.centroids[members], lab, seen.n_parts, boxes)
     sizes = np.bincount(lab, minlength=seen.n_parts)
     keep = (sizes[a] >= seen.min_voxels) & (sizes[b] >= seen.min_voxels)
     keep &= (part_owner[a] >= 0) & (part_owner[b] >= 0)

@@ -54,6 +54,9 @@ def test_each_voxel_belongs_to_the_nearest_box_within_reach() -> None:
                        [10.0, 2.6, 1.0],  # 0.35 m beyond the walker's far side
                        [10.0, 6.0, 1.0]])  # 3.75 m from both: nobody's
     assert train.owners(points, boxes).tolist() == [0, 1, 1, -1]
+    # a part is the object most of its voxels are nearest; one of voxels near nothing is nobody's
+    parts = np.array([0, 1, 1, 2], dtype=np.int32)
+    assert train.part_owners(points, parts, 3, boxes).tolist() == [0, 1, -1]
 
 
 @pytest.mark.parametrize(
@@ -80,3 +83,26 @@ def test_the_builtin_model_keeps_objects_whole_and_neighbours_apart_as_the_rule_
     model_alone = mapper(join_model="builtin", join_probability=0.5, join_veto=1.01)  # every rule join judged too
     assert len(model_alone.process(cloud(road(), *parts), ego()).clusters) == objects
     assert len(mapper(join_model="").process(cloud(road(), *parts), ego()).clusters) == objects  # as the rule does
+
+
+def constant_model(chance: float) -> JoinModel:
+    """Trees that give every pair the same chance: one leaf, the rest in the baseline."""
+    leaf = np.ones(1, dtype=bool)
+    return JoinModel(baseline=float(np.log(chance / (1.0 - chance))), roots=np.zeros(1, dtype=np.int64),
+                     feature=np.zeros(1, dtype=np.int64), threshold=np.zeros(1), left=np.zeros(1, dtype=np.int64),
+                     right=np.zeros(1, dtype=np.int64), leaf=leaf, missing_left=leaf, value=np.zeros(1))
+
+
+def test_the_rule_decides_where_the_model_is_unsure_and_gives_way_where_it_is_sure() -> None:
+    body, cabin = box((6, -0.9, 0.25), (10.3, 0.9, 0.9), RED), box((7.0, -0.8, 0.95), (9.4, 0.8, 1.45), GLASS)
+    red, blue = box((6, -1, 0), (7.95, 1, 1.5), RED), box((8, -1, 0), (10, 1, 1.5), BLUE)
+
+    def clusters(parts: list, chance: float | None) -> int:
+        m = mapper()  # the rule's join stands from 0.5, and any pair over 0.8 is joined
+        m.join_model = None if chance is None else constant_model(chance)
+        return len(m.process(cloud(road(), *parts), ego()).clusters)
+
+    assert clusters([body, cabin], None) == 1 and clusters([red, blue], None) == 2  # the share rule alone
+    assert clusters([body, cabin], 0.6) == 1 and clusters([red, blue], 0.6) == 2  # unsure: as the rule has it
+    assert clusters([body, cabin], 0.3) > 1  # doubted: the rule's joins are undone
+    assert clusters([red, blue], 0.9) == 1  # sure: joined, though the rule leaves them apart
