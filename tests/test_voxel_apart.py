@@ -73,13 +73,17 @@ def _clusters_at_the_end(speed: float, **voxel: object) -> list[tuple[float, flo
 
 
 def test_a_runner_crossing_before_a_wall_is_kept_off_it_by_his_corners() -> None:
-    # linked along his whole back, the fill's parts are joined into one object as the paper's would be
-    assert len(_clusters_at_the_end(2.5, apart_min_corners=0)) == 1
-    walker, wall = sorted(_clusters_at_the_end(2.5), key=lambda c: c[1])
+    rule = {"join_model": ""}  # the share rule, which the corners guard
+    # linked along his whole back, the fill's parts are joined into one object by the share rule
+    assert len(_clusters_at_the_end(2.5, apart_min_corners=0, **rule)) == 1
+    walker, wall = sorted(_clusters_at_the_end(2.5, **rule), key=lambda c: c[1])
     assert walker[0] == pytest.approx(-1.0 + 2.5 * 0.5 + 0.25, abs=0.1)  # coat and trousers, one cluster
     assert walker[1] < 0.6 and wall[1] > 7.5
-    # standing by the wall, he is joined to it again
-    assert len(_clusters_at_the_end(0.0)) == 1
+    # standing by the wall, the rule joins him to it again
+    assert len(_clusters_at_the_end(0.0, **rule)) == 1
+    # the learned linkage (session 53) doubts both joins: he stays off the wall, running or standing
+    assert len(_clusters_at_the_end(2.5, apart_min_corners=0)) == 2
+    assert len(_clusters_at_the_end(0.0)) == 2
 
 
 def test_a_replayed_recording_starts_every_corners_history_afresh() -> None:
