@@ -38,6 +38,7 @@ from train_join_model import Box, owners, part_owners  # noqa: E402
 from common.config import VolumeConfig  # noqa: E402
 from common.evaluation.evaluate import Evaluation, obstacle_figures  # noqa: E402
 from common.evaluation.inputs import cluster_boxes  # noqa: E402
+from common.evaluation.matching import inside_box_xy  # noqa: E402
 from services.pipeline import config_for  # noqa: E402
 from services.tracker import Tracker  # noqa: E402
 from services.voxel_mapper import VoxelMapper  # noqa: E402
@@ -53,11 +54,8 @@ def inside(points: npt.NDArray[np.float64], boxes: list[Box]) -> npt.NDArray[np.
     owner = np.full(len(points), -1, dtype=np.int64)
     best = np.full(len(points), np.inf)
     for i, (centre, size, yaw) in enumerate(boxes):
-        d = points - centre
-        c, s = np.cos(yaw), np.sin(yaw)
-        held = np.abs(d[:, 0] * c + d[:, 1] * s) <= size[0] / 2 + GROWN_M
-        held &= np.abs(-d[:, 0] * s + d[:, 1] * c) <= size[1] / 2 + GROWN_M
-        held &= np.abs(d[:, 2]) <= size[2] / 2 + GROWN_M
+        held = inside_box_xy(points[:, :2], centre, size, yaw, GROWN_M)
+        held &= np.abs(points[:, 2] - centre[2]) <= size[2] / 2 + GROWN_M
         take = held & (float(np.prod(size)) < best)
         owner[take], best[take] = i, float(np.prod(size))
     return owner

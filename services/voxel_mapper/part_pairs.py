@@ -60,10 +60,9 @@ def pair_features(vmap: VoxelMap, labels: npt.NDArray[np.int32], members: I64, n
 
     ``members`` are the map slots with a part, ``height`` every slot's height above the road.
     """
-    keys = np.unique(np.concatenate([direct[0], stepped[0]]))
+    keys = np.concatenate([direct[0], stepped[0]])
     a, b = keys // n_parts, keys % n_parts
-    a, b = np.minimum(a, b), np.maximum(a, b)
-    pair = np.unique(a * n_parts + b)
+    pair = np.unique(np.minimum(a, b) * n_parts + np.maximum(a, b))
     a, b = pair // n_parts, pair % n_parts
     if pair.size == 0:
         return a, b, np.zeros((0, len(FEATURES)))
