@@ -263,6 +263,14 @@ class TrackerConfig:
     narrow_across_m: float = 2.0  # narrower across its line of sight (m): labelled by its speed across if surer; 0: off
     # ... and only its growth across the line of sight counts as slide (labelling.py)
     narrow_by_points: bool = True  # ... narrow by its points (width across, core's depth along), not its box
+    # two moving tracks at one velocity (within twin_mps): the one wider across the line of sight is not moving if
+    # their boxes overlap by twin_overlap_m (x and y; < 0: never) and it is twin_wide_m wide, the other narrower;
+    # or whatever their widths if their centres are twin_near_m apart (< 0: never). Session 54, twins.py
+    twin_overlap_m: float = 0.0
+    twin_mps: float = 0.75
+    twin_wide_m: float = 1.5
+    twin_near_m: float = 0.4
+    upright_by_points: bool = True  # upright (upright_sigma_k, near face) also when as thin across by its points
     revive_restart_m: float = 1.0  # a ghost found this far (m) from its prediction restarts its speed window; 0: off
     merge_growth_m: float = 2.0  # cluster wider by more (m) than its track's smoothed extent: box kept; 0: off
     coast_merged_frames: int = 3  # an upright track unseen inside a seen tracked box stays tracked this long; 0: off

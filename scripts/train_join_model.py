@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -102,10 +103,11 @@ def labelled_pairs(seen: PartsSeen, boxes: list[Box]) -> tuple[F64, npt.NDArray[
     return rows[keep], (part_owner[a] == part_owner[b])[keep]
 
 
-def run_rows(path: Path) -> tuple[F64, npt.NDArray[np.bool_]]:
-    """Every frame's labelled rows of one run, its clouds mapped again with the configuration it was made with."""
+def run_rows(path: Path, sets: Sequence[str] = ()) -> tuple[F64, npt.NDArray[np.bool_]]:
+    """Every frame's labelled rows of one run, its clouds mapped again with the configuration it was made
+    with and ``sets`` (``key=value``) over it."""
     run = load_run(path, "voxel_mapper")
-    mapper = VoxelMapper.from_config(config_for(run.reader, None, ["voxel.join_model="], stored=True))
+    mapper = VoxelMapper.from_config(config_for(run.reader, None, [*sets, "voxel.join_model="], stored=True))
     rows: list[F64] = []
     same: list[npt.NDArray[np.bool_]] = []
     boxes: list[Box] = []
@@ -152,12 +154,14 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", nargs="+", type=Path, help="run recordings with ground truth (*_run.mcap)")
     parser.add_argument("--out", type=Path, required=True, help="the model file to write (JSON)")
+    parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                        help="configuration over each run's own while its parts are mapped again")
     args = parser.parse_args(argv)
     from sklearn.ensemble import HistGradientBoostingClassifier  # the dev extra: training only
 
     rows, same = [], []
     for path in progress(args.runs, len(args.runs), "mapping runs"):
-        x, y = run_rows(path)
+        x, y = run_rows(path, args.sets)
         rows.append(x)
         same.append(y)
     x, y = np.concatenate(rows), np.concatenate(same)

@@ -58,6 +58,7 @@ from services.tracker.parting import NO_PARTING, Parting, cut_by_view, part_cova
 from services.tracker.queues import NO_COASTING, Coasting, advance, coasts
 from services.tracker.report import FaceVelocity, obstacles_of
 from services.tracker.track import ACCEPTANCE, TRACKED, TrackTable, born
+from services.tracker.twins import NO_TWINS, Twins, wider_twins
 
 NDArray = npt.NDArray[Any]
 
@@ -119,6 +120,8 @@ class Tracker:
         velocity_faces: int = 0,
         narrow_by_points: bool = False,
         corners: CornerRule = NO_CORNERS,
+        upright_by_points: bool = False,
+        twins: Twins = NO_TWINS,
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -133,6 +136,7 @@ class Tracker:
         self.jumps = Jumps(jump_nis, jump_speed_std**2, young_jump_frames)
         self.left_behind = left_behind or LeftBehind(0)
         self.fragment_margin = fragment_margin
+        self.twins = twins
         self.parting = parting
         self.faces = FaceVelocity(velocity_faces, measurement_std)  # what the report blends in (report.py)
         self._parts: set[int] = set()  # this frame's parted pieces, by identity (_part)
@@ -159,6 +163,7 @@ class Tracker:
             near_only_m,
             narrow_by_points,
             corners,
+            upright_by_points,
         )
         self.corner_rule = corners
         self.corners = CornerHistory()  # the stereo stage's followed corners (common/corner_motion.py)
@@ -216,6 +221,8 @@ class Tracker:
             ),
             velocity_faces=t.velocity_faces,
             narrow_by_points=t.narrow_by_points,
+            upright_by_points=t.upright_by_points,
+            twins=Twins(t.twin_overlap_m, t.twin_mps, t.twin_wide_m, t.twin_near_m),
             corners=CornerRule(
                 t.corner_samples,
                 t.corner_min_count,
@@ -281,6 +288,7 @@ class Tracker:
             moving = self.labeller.label(self.tracks, clusters.voxel_edge, pose[0:2, 3])
             # a part's motion is partly where the parting drew its edge: it may keep a label, not give one
             self.tracks.moving = moving & (self.tracks.moving | ~self.tracks.parted)
+            self.tracks.moving &= ~wider_twins(self.tracks, self.twins)
         return obstacles_of(self.tracks, self.ego.velocity, clusters, ego, self.faces, self.corner_rule)
 
     # ------------------------------------------------------------------ input

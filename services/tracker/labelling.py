@@ -55,6 +55,7 @@ class MotionLabeller:
     near_only_m: float = 0.0  # an upright track at most this long (x and y) is confirmed by its near face
     narrow_by_points: bool = False  # narrow, and its slide, by its points across the line of sight, not its box
     corners: CornerRule = NO_CORNERS  # when the corners followed on a track label it
+    upright_by_points: bool = False  # upright also when its points are upright_thin_m across and deep at most
 
     def label(self, t: TrackTable, voxel_edge: float, eye: NDArray) -> NDArray:
         """The tracks' new moving flags; ``eye`` is the camera's world position (x, y)."""
@@ -63,6 +64,13 @@ class MotionLabeller:
         slide = slide_speed(extent, t.extent_slow, self.frame_period_s, voxel_edge)
         k = self.hysteresis.sigma_k
         upright = self.standing.upright(extent)
+        if self.upright_by_points and len(t):
+            # a walker smeared along an oblique line of sight has a box wider than a person in x and
+            # y, while his points are half a metre across and their core under a metre deep; a wall
+            # seen edge-on is as thin across but deep all along
+            with np.errstate(invalid="ignore"):
+                thin = (np.maximum(t.across, t.across_slow) <= self.standing.thin_m) & (t.depth < self.narrow_across_m)
+            upright |= thin & (extent[:, 2] >= self.standing.upright_m) & (self.standing.thin_m > 0.0)
         if self.narrow_across_m > 0.0 and len(t):
             a = across_sight(
                 t.x[:, 0:2], t.x[:, 3:5], t.p[:, 3:5, 3:5], extent, t.extent_slow, eye, self.frame_period_s, voxel_edge
