@@ -270,7 +270,7 @@ class TrackerConfig:
     twin_mps: float = 0.75
     twin_wide_m: float = 1.5
     twin_near_m: float = 0.4
-    upright_by_points: bool = True  # upright (upright_sigma_k, near face) also when as thin across by its points
+    upright_by_points_m: float = 0.0  # this tall (m), upright (upright_sigma_k) also if thin by its points; 0: off
     revive_restart_m: float = 1.0  # a ghost found this far (m) from its prediction restarts its speed window; 0: off
     merge_growth_m: float = 2.0  # cluster wider by more (m) than its track's smoothed extent: box kept; 0: off
     coast_merged_frames: int = 3  # an upright track unseen inside a seen tracked box stays tracked this long; 0: off

@@ -1526,8 +1526,8 @@ def labels_of_an_oblique_smeared_walker(**overrides: object) -> list[bool]:
 
 
 def test_a_walker_smeared_along_an_oblique_line_of_sight_is_upright_by_his_points() -> None:
-    by_box = labels_of_an_oblique_smeared_walker(upright_by_points=False)
-    by_points = labels_of_an_oblique_smeared_walker(upright_by_points=True)
+    by_box = labels_of_an_oblique_smeared_walker(upright_by_points_m=0.0)
+    by_points = labels_of_an_oblique_smeared_walker(upright_by_points_m=1.5)
     # by his box he is no person (2.2 x 1.3 m) and his label flickers; by his points he is, and keeps it
     assert sum(by_points) > sum(by_box), (by_box, by_points)
     assert all(by_points[-4:]) and not any(by_box[-3:]), (by_box, by_points)

@@ -120,7 +120,7 @@ class Tracker:
         velocity_faces: int = 0,
         narrow_by_points: bool = False,
         corners: CornerRule = NO_CORNERS,
-        upright_by_points: bool = False,
+        upright_by_points_m: float = 0.0,
         twins: Twins = NO_TWINS,
     ) -> None:
         self.weights = weights
@@ -163,7 +163,7 @@ class Tracker:
             near_only_m,
             narrow_by_points,
             corners,
-            upright_by_points,
+            upright_by_points_m,
         )
         self.corner_rule = corners
         self.corners = CornerHistory()  # the stereo stage's followed corners (common/corner_motion.py)
@@ -221,7 +221,7 @@ class Tracker:
             ),
             velocity_faces=t.velocity_faces,
             narrow_by_points=t.narrow_by_points,
-            upright_by_points=t.upright_by_points,
+            upright_by_points_m=t.upright_by_points_m,
             twins=Twins(t.twin_overlap_m, t.twin_mps, t.twin_wide_m, t.twin_near_m),
             corners=CornerRule(
                 t.corner_samples,

@@ -7,7 +7,7 @@ is not believed until the faces move too; or when the corners the stereo stage f
 sure it moves (``by_corners``, keypoint_motion.py, "Session 40"). Two corners or more, sure of a
 speed (their median less two of their sigmas), may also stand in for the faces as the second
 bound: a walker's faces at 15-25 m scatter with his smear while the corners on him do not
-("Session 42"). Five refinements of the first
+("Session 42"). Six refinements of the first
 rule, each measured on tracker replays (docs/results/tracking.md):
 
 - a narrow track (a walker, a cyclist, a pole) may be labelled by its motion across the line of
@@ -21,7 +21,10 @@ rule, each measured on tracker replays (docs/results/tracking.md):
 - narrow is judged by the track's points, not its box: a walker smeared along an oblique line of
   sight has an axis-aligned box metres wide across it, while his points are half a metre wide
   and their middle half lies within a metre along it; a wall seen edge-on is as thin across
-  but deep all along, so it is not narrow ("Session 38").
+  but deep all along, so it is not narrow ("Session 38");
+- upright may be judged by the points too (``upright_by_points_m``, off): such a walker's box is no
+  person's, 2-5 m by 1-2.5 m, so he needs twice the sigmas and both his faces; by his points he is
+  a person sooner, but so are a bin and standing things KITTI 0001 has ("Session 54").
 """
 
 from __future__ import annotations
@@ -55,7 +58,7 @@ class MotionLabeller:
     near_only_m: float = 0.0  # an upright track at most this long (x and y) is confirmed by its near face
     narrow_by_points: bool = False  # narrow, and its slide, by its points across the line of sight, not its box
     corners: CornerRule = NO_CORNERS  # when the corners followed on a track label it
-    upright_by_points: bool = False  # upright also when its points are upright_thin_m across and deep at most
+    upright_by_points_m: float = 0.0  # this tall, upright also when its points are upright_thin_m across; 0: off
 
     def label(self, t: TrackTable, voxel_edge: float, eye: NDArray) -> NDArray:
         """The tracks' new moving flags; ``eye`` is the camera's world position (x, y)."""
@@ -64,13 +67,13 @@ class MotionLabeller:
         slide = slide_speed(extent, t.extent_slow, self.frame_period_s, voxel_edge)
         k = self.hysteresis.sigma_k
         upright = self.standing.upright(extent)
-        if self.upright_by_points and len(t):
+        if self.upright_by_points_m > 0.0 and len(t):
             # a walker smeared along an oblique line of sight has a box wider than a person in x and
-            # y, while his points are half a metre across and their core under a metre deep; a wall
-            # seen edge-on is as thin across but deep all along
+            # y, while his points are half a metre across and their core shallow (the narrow test's
+            # depth); a wall seen edge-on is as thin across but deep all along
             with np.errstate(invalid="ignore"):
                 thin = (np.maximum(t.across, t.across_slow) <= self.standing.thin_m) & (t.depth < self.narrow_across_m)
-            upright |= thin & (extent[:, 2] >= self.standing.upright_m) & (self.standing.thin_m > 0.0)
+            upright |= thin & (extent[:, 2] >= self.upright_by_points_m) & (self.standing.thin_m > 0.0)
         if self.narrow_across_m > 0.0 and len(t):
             a = across_sight(
                 t.x[:, 0:2], t.x[:, 3:5], t.p[:, 3:5, 3:5], extent, t.extent_slow, eye, self.frame_period_s, voxel_edge

@@ -1,13 +1,19 @@
 """Two moving tracks on one walker: the wider one is not called moving.
 
 A walker's smear at 15-25 m can come apart into two clusters, his body and a piece of smear beside
-him (on the wall's side, or where his shadow falls), and both become tracks that move at his pace.
-The evaluation matches one of them to him and counts the other as a false moving frame: on
-held-out synthetic urban (seeds 7-10) that was most of them in session 54 (urban-s10, walker 46:
-two tracks 0.4-0.7 m apart at 1.6-1.9 m/s for 8 frames). Two people walking side by side are
-each as narrow as a person across the line of sight; the piece of smear is wider (1.2-2.4 m). So
-where two moving tracks' boxes overlap by ``overlap_m`` and their velocities within
-``mps``, the one wider across the line of sight keeps its track but not its moving label.
+him (towards the wall, say), and both become tracks that move at his pace. The evaluation matches
+one of them to him and counts the other as a false moving frame. On held-out synthetic urban
+(seeds 7-10, session 54) such twins made 12 of the 27 false moving frames: urban-s10's walker 46
+had a second track 0.4-0.7 m beside him at 1.6-1.9 m/s for 9 frames, 1.2-2.4 m wide across the
+line of sight where he was 0.4-0.7 m; walker 45 one 0.2-0.4 m beside him, as narrow as he, for 3.
+
+Two people walking side by side are each as narrow as a person, and their centres lie half a
+metre apart or more. So where two moving tracked tracks move within ``mps`` of one velocity, one
+loses its moving label (it keeps its track) when their boxes overlap by ``overlap_m`` and it is
+``wide_m`` wide across the line of sight while the other is narrower, or, whatever their widths,
+when their centres lie within ``near_m``: then the wider one loses it. Taking the wider of any
+two whose boxes touch cost crossing 14-29 true frames on each set of seeds: people crossing in
+groups (docs/results/tracking.md, "Session 54").
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -25,15 +32,38 @@ NDArray = npt.NDArray[Any]
 
 @dataclass(frozen=True)
 class Twins:
-    """When a moving track is a twin of another (config ``tracker.twin_overlap_m``, ``tracker.twin_mps``)."""
+    """When a moving track is a twin of another (config ``tracker.twin_*``)."""
 
-    overlap_m: float = -1.0  # boxes (x, y) overlapping by this much in x and in y; < 0: off
-    mps: float = 0.5  # ... and velocities (x, y) this near
-    wide_m: float = 1.0  # ... the one this wide across the line of sight or wider, the other narrower
-    near_m: float = -1.0  # or centres (x, y) this near, whatever their widths (the wider one loses); < 0: off
+    overlap_m: float = -1.0  # boxes (x, y) overlapping by this much in x and in y; < 0: never
+    mps: float = 0.75  # ... and velocities (x, y) this near
+    wide_m: float = 1.5  # ... the one this wide across the line of sight or wider, the other narrower
+    near_m: float = -1.0  # or centres (x, y) this near, whatever their widths (the wider one loses); < 0: never
 
 
-NO_TWINS = Twins()
+NO_TWINS = Twins()  # both tests off
+
+
+@numba.njit(cache=True)
+def _losers(lo: NDArray, hi: NDArray, centre: NDArray, velocity: NDArray, width: NDArray, overlap_m: float,
+            mps: float, wide_m: float, near_m: float) -> NDArray:
+    """Pairwise over the candidates: which lose their label (a loop: 50 moving tracks took 0.3 ms in numpy)."""
+    n = lo.shape[0]
+    out = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        for j in range(i + 1, n):
+            if np.hypot(velocity[i, 0] - velocity[j, 0], velocity[i, 1] - velocity[j, 1]) > mps:
+                continue
+            wider, other = (i, j) if width[i] > width[j] else (j, i)  # of two alike, the later
+            if np.hypot(centre[i, 0] - centre[j, 0], centre[i, 1] - centre[j, 1]) <= near_m:
+                out[wider] = True
+                continue
+            if overlap_m < 0.0 or not (width[wider] >= wide_m and width[other] < wide_m):
+                continue
+            ox = min(hi[i, 0] - lo[j, 0], hi[j, 0] - lo[i, 0])
+            oy = min(hi[i, 1] - lo[j, 1], hi[j, 1] - lo[i, 1])
+            if min(ox, oy) >= overlap_m:
+                out[wider] = True
+    return out
 
 
 def wider_twins(t: TrackTable, rule: Twins) -> NDArray:
@@ -46,16 +76,7 @@ def wider_twins(t: TrackTable, rule: Twins) -> NDArray:
         return out
     shift = (t.x[cand, 0:2] + t.offset[cand, 0:2]) - t.centroid[cand, 0:2]  # the boxes where the tracks are now
     lo, hi = t.bbox_min[cand, 0:2] + shift, t.bbox_max[cand, 0:2] + shift
-    overlap = np.minimum(hi[:, None, :] - lo[None, :, :], hi[None, :, :] - lo[:, None, :]).min(axis=2)
-    dv = np.linalg.norm(t.x[cand, None, 3:5] - t.x[None, cand, 3:5], axis=2)
-    extent = hi - lo
-    width = np.where(np.isfinite(t.across[cand]), t.across[cand], extent.min(axis=1))
-    centre = t.x[cand, 0:2] + t.offset[cand, 0:2]
-    near = np.linalg.norm(centre[:, None, :] - centre[None, :, :], axis=2) <= rule.near_m
-    wide = (width[:, None] >= rule.wide_m) & (width[None, :] < rule.wide_m)
-    wider = (width[:, None] > width[None, :]) | ((width[:, None] == width[None, :]) & (cand[:, None] > cand[None, :]))
-    lose = (((overlap >= rule.overlap_m) & wide) if rule.overlap_m >= 0.0 else False) | (near & wider)
-    lose &= dv <= rule.mps
-    np.fill_diagonal(lose, False)
-    out[cand] = lose.any(axis=1)
+    width = np.where(np.isfinite(t.across[cand]), t.across[cand], (hi - lo).min(axis=1))
+    out[cand] = _losers(lo, hi, t.x[cand, 0:2] + t.offset[cand, 0:2], np.ascontiguousarray(t.x[cand, 3:5]), width,
+                        rule.overlap_m, rule.mps, rule.wide_m, rule.near_m)
     return out
