@@ -265,7 +265,7 @@ class TrackerConfig:
     narrow_by_points: bool = True  # ... narrow by its points (width across, core's depth along), not its box
     # two moving tracks at one velocity (within twin_mps): the one wider across the line of sight is not moving if
     # their boxes overlap by twin_overlap_m (x and y; < 0: never) and it is twin_wide_m wide, the other narrower;
-    # or whatever their widths if their centres are twin_near_m apart (< 0: never). Session 54, twins.py
+    # or whatever their widths if their centres are within twin_near_m (< 0: never). Session 54, twins.py
     twin_overlap_m: float = 0.0
     twin_mps: float = 0.75
     twin_wide_m: float = 1.5

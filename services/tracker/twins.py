@@ -74,9 +74,10 @@ def wider_twins(t: TrackTable, rule: Twins) -> NDArray:
     cand = np.flatnonzero(t.moving & (t.queue == TRACKED))
     if cand.size < 2:
         return out
-    shift = (t.x[cand, 0:2] + t.offset[cand, 0:2]) - t.centroid[cand, 0:2]  # the boxes where the tracks are now
+    centre = t.x[cand, 0:2] + t.offset[cand, 0:2]  # where the tracks are now, as reported
+    shift = centre - t.centroid[cand, 0:2]
     lo, hi = t.bbox_min[cand, 0:2] + shift, t.bbox_max[cand, 0:2] + shift
     width = np.where(np.isfinite(t.across[cand]), t.across[cand], (hi - lo).min(axis=1))
-    out[cand] = _losers(lo, hi, t.x[cand, 0:2] + t.offset[cand, 0:2], np.ascontiguousarray(t.x[cand, 3:5]), width,
-                        rule.overlap_m, rule.mps, rule.wide_m, rule.near_m)
+    out[cand] = _losers(lo, hi, centre, np.ascontiguousarray(t.x[cand, 3:5]), width, rule.overlap_m, rule.mps,
+                        rule.wide_m, rule.near_m)
     return out
