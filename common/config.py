@@ -446,6 +446,32 @@ def load_config(
     return cfg
 
 
+def known_part(values: dict[str, Any], obj: Any = None, where: str = "") -> tuple[dict[str, Any], list[str]]:
+    """``values`` without the keys this version's configuration lacks, and those keys' paths.
+
+    A recording stores the whole configuration that made it, and keys come and go between
+    versions (session 54's ``tracker.upright_by_points`` became ``upright_by_points_m`` within the
+    session): a log made by another version should still restart at a later stage, with what this
+    version knows of its settings. A file or ``--set`` with an unknown key stays an error (a typo).
+    """
+    obj = Config() if obj is None else obj
+    names = {f.name for f in dataclasses.fields(obj)}
+    known: dict[str, Any] = {}
+    unknown: list[str] = []
+    for key, value in values.items():
+        path = f"{where}.{key}" if where else key
+        if key not in names:
+            unknown.append(path)
+            continue
+        current = getattr(obj, key)
+        if dataclasses.is_dataclass(current) and isinstance(value, dict):
+            known[key], deeper = known_part(value, current, path)
+            unknown += deeper
+        else:
+            known[key] = value
+    return known, unknown
+
+
 def from_dict(values: dict[str, Any]) -> Config:
     """A configuration stored as a mapping (a recording's metadata) back into the tree."""
     return _apply(Config(), values)

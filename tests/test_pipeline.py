@@ -22,7 +22,7 @@ from common.codec import encode
 from common.errors import ConfigError
 from common.evaluation.evaluate import evaluate_recording
 from common.messages import Obstacles
-from common.recording import open_recording
+from common.recording import RecordingWriter, open_recording
 from services.demo import BUNDLED
 from services.pipeline import process_file
 
@@ -120,6 +120,34 @@ def test_a_run_restarted_at_the_tracker_copies_the_clusters_and_takes_new_settin
 
     assert first_tracked(before.by_topic("tracker/obstacles")) < 5
     assert first_tracked(after.by_topic("tracker/obstacles")) >= 5  # six frames of acceptance, counted from 0
+
+
+@pytest.mark.timeout(300)
+def test_a_run_made_by_another_version_restarts_with_the_settings_this_one_knows(
+    demo_run: tuple[Path, dict], tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    run_path, _ = demo_run
+    reader = open_recording(run_path)
+    stored = reader.config_dict()
+    assert stored is not None
+    stored["tracker"]["accept_frames"] = 6  # known: kept
+    stored["tracker"]["retired_setting"] = 1.5  # a key a later version dropped
+    stored["gone_section"] = {"x": 1}
+    older = tmp_path / "older.mcap"
+    with RecordingWriter(older) as writer:
+        writer.describe(stored, reader.info())
+        for key, msg in reader.messages():
+            writer.write(key, msg)
+    out = tmp_path / "again.mcap"
+    with caplog.at_level("WARNING", logger="services.pipeline"):
+        assert process_file(older, out, resume_from="tracker", max_frames=5) == 5
+    left_out = caplog.text.split("left out: ")[1].split()
+    assert sorted(name.rstrip(",") for name in left_out[:2]) == ["gone_section", "tracker.retired_setting"]
+    restarted = open_recording(out).config_dict()
+    assert restarted is not None and restarted["tracker"]["accept_frames"] == 6
+    assert "retired_setting" not in restarted["tracker"]
+    with pytest.raises(ConfigError, match=r"unknown configuration key 'tracker\.retired_setting'"):
+        process_file(older, tmp_path / "typo.mcap", resume_from="tracker", sets=["tracker.retired_setting=2"])
 
 
 def test_a_restart_names_what_the_recording_lacks(tmp_path: Path) -> None:
