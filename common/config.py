@@ -378,16 +378,20 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
     raise ConfigError(f"{where}: unsupported type {hint!r}")
 
 
-def _apply(obj: Any, values: dict[str, Any], where: str = "") -> Any:
+def _apply(obj: Any, values: dict[str, Any], where: str = "", unknown: list[str] | None = None) -> Any:
+    """Set ``values`` on the tree; a key it lacks is an error, or, given ``unknown``, left out and listed there."""
     hints = typing.get_type_hints(type(obj))
     names = {f.name for f in dataclasses.fields(obj)}
     for key, value in values.items():
         path = f"{where}.{key}" if where else key
         if key not in names:
-            raise ConfigError(f"unknown configuration key {path!r}; known here: {sorted(names)}")
+            if unknown is None:
+                raise ConfigError(f"unknown configuration key {path!r}; known here: {sorted(names)}")
+            unknown.append(path)
+            continue
         current = getattr(obj, key)
         if dataclasses.is_dataclass(current) and isinstance(value, dict):
-            _apply(current, value, path)
+            _apply(current, value, path, unknown)
         else:
             setattr(obj, key, _coerce(value, hints[key], path))
     return obj
@@ -434,42 +438,24 @@ def load_config(
     file: str | Path | None = None,
     sets: typing.Iterable[str] = (),
     base: dict[str, Any] | None = None,
+    base_unknown: list[str] | None = None,
 ) -> Config:
-    """Defaults in code, then ``base`` (e.g. a recording's metadata), then a file, then ``--set``."""
+    """Defaults in code, then ``base`` (e.g. a recording's metadata), then a file, then ``--set``.
+
+    Given ``base_unknown``, keys of ``base`` this version lacks are left out and listed there: a
+    recording stores the whole configuration that made it, and keys come and go between versions
+    (session 54's ``tracker.upright_by_points`` became ``upright_by_points_m`` within the session),
+    yet a log made by another version should still restart at a later stage. A file or ``--set``
+    with an unknown key stays an error (a typo).
+    """
     cfg = Config()
     if base:
-        _apply(cfg, base)
+        _apply(cfg, base, unknown=base_unknown)
     if file:
         _apply(cfg, load_file(file))
     for item in sets:
         _apply(cfg, parse_set(item))
     return cfg
-
-
-def known_part(values: dict[str, Any], obj: Any = None, where: str = "") -> tuple[dict[str, Any], list[str]]:
-    """``values`` without the keys this version's configuration lacks, and those keys' paths.
-
-    A recording stores the whole configuration that made it, and keys come and go between
-    versions (session 54's ``tracker.upright_by_points`` became ``upright_by_points_m`` within the
-    session): a log made by another version should still restart at a later stage, with what this
-    version knows of its settings. A file or ``--set`` with an unknown key stays an error (a typo).
-    """
-    obj = Config() if obj is None else obj
-    names = {f.name for f in dataclasses.fields(obj)}
-    known: dict[str, Any] = {}
-    unknown: list[str] = []
-    for key, value in values.items():
-        path = f"{where}.{key}" if where else key
-        if key not in names:
-            unknown.append(path)
-            continue
-        current = getattr(obj, key)
-        if dataclasses.is_dataclass(current) and isinstance(value, dict):
-            known[key], deeper = known_part(value, current, path)
-            unknown += deeper
-        else:
-            known[key] = value
-    return known, unknown
 
 
 def from_dict(values: dict[str, Any]) -> Config:

@@ -21,7 +21,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from common.config import Config, known_part, load_config, recording_overrides
+from common.config import Config, load_config, recording_overrides
 from common.errors import ConfigError
 from common.messages import (
     Clusters,
@@ -121,12 +121,12 @@ def config_for(
     restarted at a later stage must keep what its earlier stages were made with).
     """
     base = reader.config_dict() if stored else None
-    if base:
-        base, unknown = known_part(base)
-        if unknown:
-            log.warning("%s was made with settings this version does not have, left out: %s", reader.path,
-                        ", ".join(unknown))
-    return load_config(file, sets or [], base=base or recording_overrides(reader.info()))
+    unknown: list[str] = []
+    cfg = load_config(file, sets or [], base=base or recording_overrides(reader.info()), base_unknown=unknown)
+    if unknown:
+        log.warning("%s was made with settings this version does not have, left out: %s", reader.path,
+                    ", ".join(unknown))
+    return cfg
 
 
 def run_recording(
