@@ -289,6 +289,12 @@ class TrackerConfig:
     corner_blend_count: int = 2  # this many are blended into a moving track's reported velocity (5 until session 42)
     corner_restart_count: int = 4  # a standing ghost found again with this many beyond its filter's gate restarts
     corner_across_std_m: float = 0.05  # a corner's place across the line of sight (m; 0.03, 0.1 measured); 0: off
+    # moving or stationary judged by trees (services/tracker/motion_model.py): "builtin" (trained on tuning
+    # runs), a model file, or "" for the rule (labelling.py); a track turns moving when their chance clears
+    # motion_model_on and stays moving while it clears motion_model_off
+    motion_model: str = ""
+    motion_model_on: float = 0.9
+    motion_model_off: float = 0.5
 
 
 @dataclass

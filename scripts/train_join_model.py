@@ -39,6 +39,7 @@ sys.path.insert(0, str(REPO / "scripts"))
 
 from sweep_tracker import load_run  # noqa: E402
 
+from common.boosted_trees import export as export_trees  # noqa: E402
 from common.progress import progress  # noqa: E402
 from services.pipeline import config_for  # noqa: E402
 from services.voxel_mapper import VoxelMapper  # noqa: E402
@@ -135,19 +136,7 @@ def run_rows(path: Path, sets: Sequence[str] = ()) -> tuple[F64, npt.NDArray[np.
 
 def export(model: Any) -> dict[str, Any]:
     """A fitted HistGradientBoostingClassifier's trees as flat node arrays (join_model.JoinModel's file)."""
-    out: dict[str, list[Any]] = {key: [] for key in ("feature", "threshold", "left", "right", "leaf",
-                                                      "missing_left", "value", "roots")}
-    for (tree,) in model._predictors:  # one tree per iteration for two classes
-        nodes, base = tree.nodes, len(out["feature"])
-        out["roots"].append(base)
-        out["feature"] += nodes["feature_idx"].tolist()
-        out["threshold"] += nodes["num_threshold"].tolist()
-        out["left"] += (nodes["left"].astype(np.int64) + base).tolist()
-        out["right"] += (nodes["right"].astype(np.int64) + base).tolist()
-        out["leaf"] += nodes["is_leaf"].astype(bool).tolist()
-        out["missing_left"] += nodes["missing_go_to_left"].astype(bool).tolist()
-        out["value"] += nodes["value"].tolist()
-    return {"features": list(FEATURES), "baseline": float(np.ravel(model._baseline_prediction)[0]), **out}
+    return export_trees(model, FEATURES)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -34,7 +34,7 @@ def test_the_exported_trees_give_scikit_learns_probabilities(tmp_path: Path) -> 
 def test_a_model_file_that_is_not_one_or_of_other_features_is_named(tmp_path: Path) -> None:
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
-    with pytest.raises(ConfigError, match=r"bad\.json is not a readable join model"):
+    with pytest.raises(ConfigError, match=r"voxel\.join_model: .*bad\.json is not a readable model"):
         JoinModel.load(bad)
     other = json.loads(BUILTIN.read_text())
     other["features"] = other["features"][:-1]

@@ -52,6 +52,7 @@ from services.tracker.keypoint_motion import NO_CORNERS, CornerRule, correct_by_
 from services.tracker.labelling import MotionLabeller
 from services.tracker.left_behind import LeftBehind, restart_from_rest
 from services.tracker.measurement import cut_covariance, stereo_covariance, view_cut_covariance, visibility_covariance
+from services.tracker.motion_model import LearnedLabel, learned_label
 from services.tracker.motion_state import SLIDE_SMOOTHING, EgoVelocity, Hysteresis
 from services.tracker.observations import Observations, observe
 from services.tracker.parting import NO_PARTING, Parting, cut_by_view, part_covariance, part_tracked
@@ -122,6 +123,7 @@ class Tracker:
         corners: CornerRule = NO_CORNERS,
         upright_by_points_m: float = 0.0,
         twins: Twins = NO_TWINS,
+        learned: LearnedLabel | None = None,
     ) -> None:
         self.weights = weights
         self.accept_frames = accept_frames
@@ -164,6 +166,7 @@ class Tracker:
             narrow_by_points,
             corners,
             upright_by_points_m,
+            learned,
         )
         self.corner_rule = corners
         self.corners = CornerHistory()  # the stereo stage's followed corners (common/corner_motion.py)
@@ -223,6 +226,7 @@ class Tracker:
             narrow_by_points=t.narrow_by_points,
             upright_by_points_m=t.upright_by_points_m,
             twins=Twins(t.twin_overlap_m, t.twin_mps, t.twin_wide_m, t.twin_near_m),
+            learned=learned_label(t.motion_model, t.motion_model_on, t.motion_model_off),
             corners=CornerRule(
                 t.corner_samples,
                 t.corner_min_count,

@@ -39,6 +39,7 @@ import numpy.typing as npt
 from services.tracker import motion_window
 from services.tracker.fragments import Standing
 from services.tracker.keypoint_motion import NO_CORNERS, CornerRule
+from services.tracker.motion_model import LearnedLabel, motion_features
 from services.tracker.motion_state import Hysteresis, across_sight, label, slide_speed, speed_and_sigma, width_slide
 from services.tracker.track import TrackTable
 
@@ -59,9 +60,12 @@ class MotionLabeller:
     narrow_by_points: bool = False  # narrow, and its slide, by its points across the line of sight, not its box
     corners: CornerRule = NO_CORNERS  # when the corners followed on a track label it
     upright_by_points_m: float = 0.0  # this tall, upright also when its points are upright_thin_m across; 0: off
+    learned: LearnedLabel | None = None  # trees that judge instead of the rule (motion_model.py); None: the rule
 
     def label(self, t: TrackTable, voxel_edge: float, eye: NDArray) -> NDArray:
         """The tracks' new moving flags; ``eye`` is the camera's world position (x, y)."""
+        if self.learned is not None:
+            return self.by_model(t, voxel_edge, eye, self.learned)
         extent = t.bbox_max - t.bbox_min
         speed, sigma = speed_and_sigma(t.x[:, 3:6], t.p[:, 3:6, 3:6])
         slide = slide_speed(extent, t.extent_slow, self.frame_period_s, voxel_edge)
@@ -114,6 +118,21 @@ class MotionLabeller:
         if self.hysteresis.max_floor_m > 0.0:
             # what moves on a road stands on it: a cluster held up in the air (a tree's crown, a sign)
             # does not turn moving, however its pieces swap from frame to frame
+            moving &= t.moving | (t.floor <= self.hysteresis.max_floor_m)
+        return moving
+
+    def features(self, t: TrackTable, voxel_edge: float, eye: NDArray) -> NDArray:
+        """The rows the trees judge (motion_model.FEATURES), as this rule's settings measure them."""
+        return motion_features(
+            t, voxel_edge, eye, self.frame_period_s, self.face_std, self.hysteresis.sigma_k, self.standing
+        )
+
+    def by_model(self, t: TrackTable, voxel_edge: float, eye: NDArray, learned: LearnedLabel) -> NDArray:
+        """The trees' label, with a hysteresis of their chance; the track's age and floor gate it as the rule's."""
+        chance = learned.model.probability(self.features(t, voxel_edge, eye))
+        turn_on = (chance > learned.on) & (t.age >= self.hysteresis.min_frames)
+        moving = np.where(t.moving, chance > learned.off, turn_on)
+        if self.hysteresis.max_floor_m > 0.0:
             moving &= t.moving | (t.floor <= self.hysteresis.max_floor_m)
         return moving
 
