@@ -30,11 +30,15 @@ NODE_KEYS = ("feature", "threshold", "left", "right", "leaf", "missing_left", "v
 def _raw_scores(rows: F64, roots: I64, feature: I64, threshold: F64, left: I64, right: I64,
                 leaf: npt.NDArray[np.bool_], missing_left: npt.NDArray[np.bool_], value: F64,
                 baseline: float) -> F64:
-    """Each row's summed leaf values over all trees (scikit-learn's raw prediction)."""
-    out = np.empty(rows.shape[0])
-    for i in range(rows.shape[0]):
-        total = baseline
-        for root in roots:
+    """Each row's summed leaf values over all trees (scikit-learn's raw prediction).
+
+    Tree by tree, every row down each: one tree's nodes stay in the cache while the rows go down
+    it. Row by row, all trees' nodes (a quarter of a megabyte for the tracker's 200 trees) went
+    through the cache for each row, and the tracker's label took 0.3 ms a frame with 50 tracks.
+    """
+    out = np.full(rows.shape[0], baseline)
+    for root in roots:
+        for i in range(rows.shape[0]):
             k = root
             while not leaf[k]:
                 x = rows[i, feature[k]]
@@ -44,8 +48,7 @@ def _raw_scores(rows: F64, roots: I64, feature: I64, threshold: F64, left: I64, 
                     k = left[k]
                 else:
                     k = right[k]
-            total += value[k]
-        out[i] = total
+            out[i] += value[k]
     return out
 
 

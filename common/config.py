@@ -292,7 +292,7 @@ class TrackerConfig:
     # moving or stationary judged by trees (services/tracker/motion_model.py): "builtin" (trained on tuning
     # runs), a model file, or "" for the rule (labelling.py); a track turns moving when their chance clears
     # motion_model_on and stays moving while it clears motion_model_off
-    motion_model: str = ""
+    motion_model: str = "builtin"
     motion_model_on: float = 0.9
     motion_model_off: float = 0.5
 

@@ -43,11 +43,13 @@ def revision_tracker(rev: str, into: Path) -> ModuleType:
     target.mkdir(parents=True)
     (into / PACKAGE / "__init__.py").write_text("")
     for name in listing.stdout.split():
-        if not name.endswith(".py"):
+        if not name.endswith((".py", ".json")):  # the code and its data (a model's trees, motion_model.py)
             continue
         show = ["git", "-C", str(REPO), "show", f"{rev}:services/tracker/{name}"]
         source = subprocess.run(show, capture_output=True, text=True, check=True).stdout
-        (target / name).write_text(re.sub(r"\bservices\.tracker\b", f"{PACKAGE}.tracker", source))
+        if name.endswith(".py"):
+            source = re.sub(r"\bservices\.tracker\b", f"{PACKAGE}.tracker", source)
+        (target / name).write_text(source)
     sys.path.insert(0, str(into))
     for loaded in [m for m in sys.modules if m == PACKAGE or m.startswith(PACKAGE + ".")]:
         del sys.modules[loaded]

@@ -289,7 +289,7 @@ class Tracker:
         fresh[cols] = False
         self._spawn(obs.take(fresh), r[fresh], parted[fresh])
         if trusted:
-            moving = self.labeller.label(self.tracks, clusters.voxel_edge, pose[0:2, 3])
+            moving = self.labeller.label(self.tracks, clusters.voxel_edge, pose[0:2, 3], len(clusters.keypoint_ids) > 0)
             # a part's motion is partly where the parting drew its edge: it may keep a label, not give one
             self.tracks.moving = moving & (self.tracks.moving | ~self.tracks.parted)
             self.tracks.moving &= ~wider_twins(self.tracks, self.twins)

@@ -62,9 +62,14 @@ class MotionLabeller:
     upright_by_points_m: float = 0.0  # this tall, upright also when its points are upright_thin_m across; 0: off
     learned: LearnedLabel | None = None  # trees that judge instead of the rule (motion_model.py); None: the rule
 
-    def label(self, t: TrackTable, voxel_edge: float, eye: NDArray) -> NDArray:
-        """The tracks' new moving flags; ``eye`` is the camera's world position (x, y)."""
-        if self.learned is not None:
+    def label(self, t: TrackTable, voxel_edge: float, eye: NDArray, corners_seen: bool = True) -> NDArray:
+        """The tracks' new moving flags; ``eye`` is the camera's world position (x, y).
+
+        The trees, where configured, judge only a frame whose stream follows corners
+        (``corners_seen``): they learnt from runs that did, and without any they read a walker at
+        8 m at 0.86 at best (``tests/test_tracker.py``'s hand-built walkers), so the rule judges.
+        """
+        if self.learned is not None and corners_seen and self.corners.samples > 0:
             return self.by_model(t, voxel_edge, eye, self.learned)
         extent = t.bbox_max - t.bbox_min
         speed, sigma = speed_and_sigma(t.x[:, 3:6], t.p[:, 3:6, 3:6])
