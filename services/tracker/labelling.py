@@ -25,6 +25,10 @@ rule, each measured on tracker replays (docs/results/tracking.md):
 - upright may be judged by the points too (``upright_by_points_m``, off): such a walker's box is no
   person's, 2-5 m by 1-2.5 m, so he needs twice the sigmas and both his faces; by his points he is
   a person sooner, but so are a bin and standing things KITTI 0001 has ("Session 54").
+
+Since session 55 trees trained on tuning runs judge instead (``tracker.motion_model``,
+motion_model.py): this rule labels a stream without followed corners, and every stream with
+``tracker.motion_model=``.
 """
 
 from __future__ import annotations
@@ -67,7 +71,7 @@ class MotionLabeller:
 
         The trees, where configured, judge only a frame whose stream follows corners
         (``corners_seen``): they learnt from runs that did, and without any they read a walker at
-        8 m at 0.86 at best (``tests/test_tracker.py``'s hand-built walkers), so the rule judges.
+        8 m at 0.87 at best (``tests/test_tracker.py``'s hand-built walkers), so the rule judges.
         """
         if self.learned is not None and corners_seen and self.corners.samples > 0:
             return self.by_model(t, voxel_edge, eye, self.learned)
