@@ -106,24 +106,26 @@ def motion_features(
         sigma_k,
         np.concatenate([a.normal, a.normal]),
     )
-    seen = t.corner_count > 0
     ray = t.x[:, 0:2] - eye
     distance = np.hypot(ray[:, 0], ray[:, 1])
     unit = ray / np.maximum(distance, 1e-9)[:, None]
-    rows = np.column_stack([
-        speed, sigma, slide, whole[:n], whole[n:],
-        a.speed, a.sigma, a.slide, a.width, np.minimum(along[:n], along[n:]),
-        np.where(seen, np.hypot(t.corner_velocity[:, 0], t.corner_velocity[:, 1]), np.nan),
-        np.where(seen, t.corner_sigma, np.nan),
-        t.corner_count,
-        np.where(seen, np.abs(t.corner_across), np.nan),
-        np.where(seen, t.corner_across_sigma, np.nan),
-        extent[:, 0], extent[:, 1], extent[:, 2], t.extent_slow[:, 0], t.extent_slow[:, 1],
-        t.across, t.across_slow, t.depth,
-        t.age, t.floor, distance, np.abs(np.arctan2(unit[:, 1], unit[:, 0])), standing.upright(extent), t.nis,
-        t.window_n,
-        np.abs((t.x[:, 3:5] * unit).sum(axis=1)), np.abs(t.x[:, 4] * unit[:, 0] - t.x[:, 3] * unit[:, 1]),
-        t.hits,
-    ]).astype(np.float64)  # fmt: skip
+    rows = np.empty((n, len(FEATURES)))  # filled column by column: a column_stack of 33 cost a tenth of the label
+    rows[:, 0:3] = np.column_stack([speed, sigma, slide])
+    rows[:, 3], rows[:, 4] = whole[:n], whole[n:]
+    rows[:, 5], rows[:, 6], rows[:, 7], rows[:, 8] = a.speed, a.sigma, a.slide, a.width
+    rows[:, 9] = np.minimum(along[:n], along[n:])
+    rows[:, 10] = np.hypot(t.corner_velocity[:, 0], t.corner_velocity[:, 1])
+    rows[:, 11], rows[:, 12], rows[:, 13], rows[:, 14] = (
+        t.corner_sigma, t.corner_count, np.abs(t.corner_across), t.corner_across_sigma
+    )
+    rows[t.corner_count <= 0, 10:15] = (np.nan, np.nan, 0.0, np.nan, np.nan)  # no corners, no opinion
+    rows[:, 15:18], rows[:, 18:20] = extent, t.extent_slow[:, 0:2]
+    rows[:, 20], rows[:, 21], rows[:, 22] = t.across, t.across_slow, t.depth
+    rows[:, 23], rows[:, 24], rows[:, 25] = t.age, t.floor, distance
+    rows[:, 26] = np.abs(np.arctan2(unit[:, 1], unit[:, 0]))
+    rows[:, 27], rows[:, 28], rows[:, 29] = standing.upright(extent), t.nis, t.window_n
+    rows[:, 30] = np.abs((t.x[:, 3:5] * unit).sum(axis=1))
+    rows[:, 31] = np.abs(t.x[:, 4] * unit[:, 0] - t.x[:, 3] * unit[:, 1])
+    rows[:, 32] = t.hits
     rows[~np.isfinite(rows)] = np.nan  # -inf bounds (too few faces) and unknown widths alike: no opinion
     return rows
