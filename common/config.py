@@ -295,6 +295,7 @@ class TrackerConfig:
     motion_model: str = "builtin"
     motion_model_on: float = 0.9
     motion_model_off: float = 0.5
+    motion_model_corners: bool = True  # ... and corners sure of its pace turn a track moving too, as in the rule
 
 
 @dataclass

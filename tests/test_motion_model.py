@@ -89,3 +89,16 @@ def test_training_rows_are_the_tracked_tracks_the_evaluation_matched(tmp_path: P
     assert train.main([str(run), "--out", str(model), "--set", "tracker.motion_model="]) == 0
     chance = MotionModel.load(model).probability(x)
     assert np.mean((chance > 0.5) == (y == 1)) > 0.8  # it learnt its own rows
+
+
+def test_corners_sure_of_his_pace_call_a_walker_going_straight_away_moving_where_the_trees_doubt() -> None:
+    # the trees' runs hold no walker going straight away down the lane: his motion is all along the
+    # line of sight, where theirs always had some across it, and they read him under 0.5 throughout
+    from test_tracker_corners import _noisy_walk
+
+    for seed in (0, 1):
+        trees_alone = _noisy_walk(True, 1.6, seed, motion_model_corners=False)
+        with_corners = _noisy_walk(True, 1.6, seed)
+        assert not any(trees_alone), seed
+        assert any(with_corners[:6]) and all(with_corners[-5:]), (seed, with_corners)
+        assert not any(_noisy_walk(True, 0.0, seed))  # a post whose cluster swings as much

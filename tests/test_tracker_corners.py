@@ -280,20 +280,27 @@ def test_a_post_whose_cluster_swings_as_much_is_not(seed: int) -> None:
 @pytest.mark.parametrize("seed", [1, 4])
 def test_corners_sure_of_a_walkers_pace_confirm_it_where_his_faces_scatter_too_much(seed: int) -> None:
     # faces swinging by up to 3 m: their window cannot confirm the filter's speed, the corners can
-    # (their own turn-on is kept out of it with an unreachable threshold)
+    # (their own turn-on is kept out of it with an unreachable threshold); the rule's second opinion,
+    # so the rule labels (the trees take the corners among their inputs instead)
     def walk(speed: float, confirms: bool) -> list[bool]:
         return _noisy_walk(
-            True, speed, seed, swing_m=3.0, corner_on_mps=100.0, corner_confirm_count=2 if confirms else 0
+            True, speed, seed, swing_m=3.0, corner_on_mps=100.0, corner_confirm_count=2 if confirms else 0,
+            motion_model="",
         )
 
     assert walk(1.6, True).count(True) >= walk(1.6, False).count(True) + 4
     assert not any(walk(0.0, True))
 
 
-def _sliding_cluster_over_standing_corners(still_mps: float, update_gate: float = 0.0, frames: int = 16) -> list[bool]:
+def _sliding_cluster_over_standing_corners(
+    still_mps: float, update_gate: float = 0.0, frames: int = 16, motion_model: str = ""
+) -> list[bool]:
     """A cluster that moves away at 1.6 m/s (a pole's smear swinging out, at its worst) while the
-    eight corners in it stand still. Whether any obstacle is labelled moving, frame by frame."""
-    tracker = new_tracker(corner_samples=6, corner_still_mps=still_mps, corner_update_gate=update_gate)
+    eight corners in it stand still. Whether any obstacle is labelled moving, frame by frame (by the
+    rule unless ``motion_model`` names trees)."""
+    tracker = new_tracker(
+        corner_samples=6, corner_still_mps=still_mps, corner_update_gate=update_gate, motion_model=motion_model
+    )
     corners = np.column_stack([np.full(8, 23.1), np.linspace(-0.2, 0.2, 8), np.linspace(0.2, 1.6, 8)])
     labels = []
     for k in range(frames):
@@ -309,8 +316,10 @@ def _sliding_cluster_over_standing_corners(still_mps: float, update_gate: float 
 
 
 def test_corners_sure_a_track_stands_keep_it_from_turning_moving() -> None:
-    assert any(_sliding_cluster_over_standing_corners(still_mps=0.0))  # the filter alone calls it moving
+    assert any(_sliding_cluster_over_standing_corners(still_mps=0.0))  # the rule's filter alone calls it moving
     assert not any(_sliding_cluster_over_standing_corners(still_mps=1.0))
+    # the trees read the standing corners among their inputs, with no rule to hold them
+    assert not any(_sliding_cluster_over_standing_corners(still_mps=0.0, update_gate=0.0, motion_model="builtin"))
 
 
 def test_standing_corners_correcting_the_filter_keep_it_standing_too() -> None:

@@ -14,7 +14,9 @@ points' shape, range and age) and learn where the moving tracks lie among them f
 runs with ground truth: ``scripts/train_motion_model.py`` replays the tracker on them and asks
 the evaluation's matching which tracks were on moving objects. A track turns moving when their
 chance clears ``tracker.motion_model_on`` and stays moving while it clears
-``motion_model_off`` (docs/results/tracking.md, "Session 55").
+``motion_model_off`` (docs/results/tracking.md, "Session 55"). The corners followed on a track,
+sure of a walker's pace, turn it moving too, as in the rule (``motion_model_corners``): the runs
+the trees learnt from hold no walker going straight away down the lane.
 """
 
 from __future__ import annotations
@@ -70,6 +72,7 @@ class LearnedLabel:
     model: MotionModel
     on: float  # a stationary track turns moving when the chance clears this
     off: float  # ... and a moving one stays moving while it clears this
+    corners: bool = True  # corners sure of its pace also turn it moving, as in the rule (labelling.by_corners)
 
 
 def load_motion_model(setting: str) -> MotionModel | None:
@@ -79,10 +82,10 @@ def load_motion_model(setting: str) -> MotionModel | None:
     return MotionModel.load(BUILTIN if setting == "builtin" else setting)
 
 
-def learned_label(setting: str, on: float, off: float) -> LearnedLabel | None:
+def learned_label(setting: str, on: float, off: float, corners: bool = True) -> LearnedLabel | None:
     """The configured trees with their hysteresis; None for the rule."""
     model = load_motion_model(setting)
-    return None if model is None else LearnedLabel(model, on, off)
+    return None if model is None else LearnedLabel(model, on, off, corners)
 
 
 def motion_features(
