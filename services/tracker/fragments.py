@@ -169,7 +169,7 @@ class Standing:
         extent = np.asarray(extent, dtype=np.float64).reshape(-1, 3)
         if self.upright_m <= 0.0 or self.thin_m <= 0.0:
             return np.zeros(len(extent), dtype=bool)
-        return (extent[:, 2] >= self.upright_m) & (extent[:, 0:2].min(axis=1) <= self.thin_m)
+        return (extent[:, 2] >= self.upright_m) & (np.minimum(extent[:, 0], extent[:, 1]) <= self.thin_m)
 
     def whole(self, pieces: list[Cluster], standing: NDArray, sight: Sight | None = None) -> NDArray:
         """Which standing pieces are a whole upright object: by their boxes, or seen from ``sight``.

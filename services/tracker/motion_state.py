@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -40,16 +41,29 @@ class Hysteresis:
 
 
 def speed_and_sigma(velocity: NDArray, velocity_cov: NDArray) -> tuple[NDArray, NDArray]:
-    """Horizontal speed (n,) and its standard deviation along the velocity's direction."""
-    vx, vy = velocity[:, 0], velocity[:, 1]
-    speed = np.hypot(vx, vy)
-    dx, dy = vx / np.maximum(speed, 1e-9), vy / np.maximum(speed, 1e-9)
-    cxx, cyy = velocity_cov[:, 0, 0], velocity_cov[:, 1, 1]
-    # d^T C d written out: a three-operand einsum costs twice as much for a 2 x 2 form
-    var = dx * dx * cxx + dx * dy * (velocity_cov[:, 0, 1] + velocity_cov[:, 1, 0]) + dy * dy * cyy
-    # at zero speed the direction is arbitrary: take the larger axis variance, the cautious choice
-    var = np.where(speed > 1e-9, var, np.maximum(cxx, cyy))
-    return speed, np.sqrt(np.maximum(var, 0.0))
+    """Horizontal speed (n,) and its standard deviation along the velocity's direction.
+
+    Compiled, track by track: the same sums over numpy's arrays took 9 µs a call with 50 tracks,
+    and the tracker takes it twice a frame (label and report).
+    """
+    return _speed_and_sigma(np.asarray(velocity, dtype=np.float64), np.asarray(velocity_cov, dtype=np.float64))
+
+
+@numba.njit(cache=True)
+def _speed_and_sigma(velocity: NDArray, velocity_cov: NDArray) -> tuple[NDArray, NDArray]:
+    n = velocity.shape[0]
+    speed, sigma = np.empty(n), np.empty(n)
+    for i in range(n):
+        vx, vy = velocity[i, 0], velocity[i, 1]
+        s = np.hypot(vx, vy)
+        cxx, cyy = velocity_cov[i, 0, 0], velocity_cov[i, 1, 1]
+        if s > 1e-9:
+            dx, dy = vx / s, vy / s
+            var = dx * dx * cxx + dx * dy * (velocity_cov[i, 0, 1] + velocity_cov[i, 1, 0]) + dy * dy * cyy
+        else:  # at zero speed the direction is arbitrary: take the larger axis variance, the cautious choice
+            var = max(cxx, cyy)
+        speed[i], sigma[i] = s, np.sqrt(max(var, 0.0))
+    return speed, sigma
 
 
 def _slide_lag(period_s: float) -> float:
@@ -65,8 +79,19 @@ def slide_speed(extent: NDArray, extent_slow: NDArray, period_s: float, voxel_ed
     flickers by a voxel at its faces from quantisation alone, so one voxel edge of difference per
     axis is not counted as growth.
     """
-    growth = np.maximum(np.abs(extent - extent_slow)[:, 0:2] - voxel_edge, 0.0)
-    return 0.5 * np.linalg.norm(growth, axis=1) / _slide_lag(period_s)
+    return _slide_speed(np.asarray(extent, np.float64), np.asarray(extent_slow, np.float64), voxel_edge,
+                        _slide_lag(period_s))
+
+
+@numba.njit(cache=True)
+def _slide_speed(extent: NDArray, extent_slow: NDArray, voxel_edge: float, lag: float) -> NDArray:
+    """``slide_speed`` track by track: over numpy's arrays it took 8 µs a frame with 50 tracks."""
+    out = np.empty(extent.shape[0])
+    for i in range(extent.shape[0]):
+        gx = max(abs(extent[i, 0] - extent_slow[i, 0]) - voxel_edge, 0.0)
+        gy = max(abs(extent[i, 1] - extent_slow[i, 1]) - voxel_edge, 0.0)
+        out[i] = 0.5 * np.sqrt(gx * gx + gy * gy) / lag
+    return out
 
 
 def width_slide(now: NDArray, slow: NDArray, period_s: float, voxel_edge: float) -> NDArray:
@@ -102,28 +127,38 @@ def across_sight(
     period_s: float,
     voxel_edge: float,
 ) -> Across:
-    """Horizontal ``position`` (n, 2) and ``velocity`` (n, 2) seen from ``eye`` (2,), all in the world."""
-    ray = position - eye
-    ray = ray / np.maximum(np.linalg.norm(ray, axis=1), 1e-9)[:, None]
-    normal = np.column_stack([-ray[:, 1], ray[:, 0]])
+    """Horizontal ``position`` (n, 2) and ``velocity`` (n, 2) seen from ``eye`` (2,), all in the world.
 
-    def width(box: NDArray) -> NDArray:
-        return np.abs(box[:, 0] * normal[:, 0]) + np.abs(box[:, 1] * normal[:, 1])
+    Compiled, track by track: over numpy's arrays it took 30 µs a frame with 50 tracks.
+    """
+    f8 = np.float64
+    normal, now, speed, sigma, slow = _across_sight(
+        np.asarray(position, f8), np.asarray(velocity, f8), np.asarray(velocity_cov, f8), np.asarray(extent, f8),
+        np.asarray(extent_slow, f8), np.asarray(eye, f8),
+    )  # fmt: skip
+    slide = width_slide(now, slow, period_s, voxel_edge)
+    return Across(normal=normal, width=now, speed=speed, sigma=sigma, slide=slide)
 
-    now, slow = width(extent), width(extent_slow)
-    nx, ny = normal[:, 0], normal[:, 1]  # n^T C n written out, as in speed_and_sigma
-    var = (
-        nx * nx * velocity_cov[:, 0, 0]
-        + nx * ny * (velocity_cov[:, 0, 1] + velocity_cov[:, 1, 0])
-        + ny * ny * velocity_cov[:, 1, 1]
-    )
-    return Across(
-        normal=normal,
-        width=now,
-        speed=np.abs((velocity * normal).sum(axis=1)),
-        sigma=np.sqrt(np.maximum(var, 0.0)),
-        slide=width_slide(now, slow, period_s, voxel_edge),
-    )
+
+@numba.njit(cache=True)
+def _across_sight(
+    position: NDArray, velocity: NDArray, velocity_cov: NDArray, extent: NDArray, extent_slow: NDArray, eye: NDArray
+) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
+    """``across_sight``'s normal, width now, speed, sigma, and width lately (for its slide)."""
+    n = position.shape[0]
+    normal, now, speed, sigma, slow = np.empty((n, 2)), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    for i in range(n):
+        rx, ry = position[i, 0] - eye[0], position[i, 1] - eye[1]
+        norm = max(np.sqrt(rx * rx + ry * ry), 1e-9)
+        nx, ny = -(ry / norm), rx / norm
+        normal[i, 0], normal[i, 1] = nx, ny
+        now[i] = abs(extent[i, 0] * nx) + abs(extent[i, 1] * ny)
+        slow[i] = abs(extent_slow[i, 0] * nx) + abs(extent_slow[i, 1] * ny)
+        speed[i] = abs(velocity[i, 0] * nx + velocity[i, 1] * ny)
+        # n^T C n written out, as in speed_and_sigma
+        var = nx * nx * velocity_cov[i, 0, 0] + nx * ny * (velocity_cov[i, 0, 1] + velocity_cov[i, 1, 0])
+        sigma[i] = np.sqrt(max(var + ny * ny * velocity_cov[i, 1, 1], 0.0))
+    return normal, now, speed, sigma, slow
 
 
 def label(
