@@ -152,10 +152,10 @@ class Tracker:
         self.side_slice_m = side_slice_m
         self.coasting = coasting
         self.view_margin_m = view_margin_m
-        self.upright_accel_std = (
-            None if upright_accel_std is None else np.array([upright_accel_std, upright_accel_std, self.accel_std[2]])
+        self.noise = kalman.ProcessNoise(
+            self.accel_std,
+            None if upright_accel_std is None else np.array([upright_accel_std, upright_accel_std, self.accel_std[2]]),
         )
-        self._noise: dict[float, tuple[NDArray, NDArray | None]] = {}  # _noise_of's matrices by time step
         self.labeller = MotionLabeller(
             hysteresis,
             standing,
@@ -351,21 +351,11 @@ class Tracker:
         walker waiting at the kerb took 8-10 frames to follow him across (synthetic crossing-s2;
         docs/results/tracking.md, "Session 22").
         """
-        q, q_upright = self._noise_of(dt)
+        q, q_upright = self.noise.over(dt)
         if q_upright is None:
             return q
         upright = self.standing.upright(self.tracks.bbox_max - self.tracks.bbox_min)
         return np.where(upright[:, None, None], q_upright[None], q[None])
-
-    def _noise_of(self, dt: float) -> tuple[NDArray, NDArray | None]:
-        """A car's and a person's process noise over ``dt``, kept: a stream has one or two steps, and
-        building the two matrices afresh each frame cost 17 µs."""
-        if dt not in self._noise:
-            if len(self._noise) > 16:  # a stream with jittery stamps: the cache stays small
-                self._noise.clear()
-            upright = None if self.upright_accel_std is None else kalman.process_noise(dt, self.upright_accel_std)
-            self._noise[dt] = (kalman.process_noise(dt, self.accel_std), upright)
-        return self._noise[dt]
 
     def _associate(self, obs: Observations, r: NDArray) -> tuple[NDArray, NDArray]:
         t = self.tracks

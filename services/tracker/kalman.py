@@ -44,6 +44,27 @@ def process_noise(dt: float, accel_std: F64) -> F64:
     return q
 
 
+class ProcessNoise:
+    """A car's process noise and, if set, a person's, over a time step; kept between frames.
+
+    A stream has one or two time steps, and building the two matrices afresh each frame cost 17 µs
+    of the tracker's 2 ms (docs/results/tracking.md, "Session 56").
+    """
+
+    def __init__(self, accel_std: F64, upright_accel_std: F64 | None = None) -> None:
+        self.accel_std, self.upright_accel_std = accel_std, upright_accel_std
+        self._kept: dict[float, tuple[F64, F64 | None]] = {}
+
+    def over(self, dt: float) -> tuple[F64, F64 | None]:
+        """The two (6, 6) matrices over ``dt`` seconds; the second None without a person's noise."""
+        if dt not in self._kept:
+            if len(self._kept) > 16:  # a stream with jittery stamps: the store stays small
+                self._kept.clear()
+            upright = None if self.upright_accel_std is None else process_noise(dt, self.upright_accel_std)
+            self._kept[dt] = (process_noise(dt, self.accel_std), upright)
+        return self._kept[dt]
+
+
 def initial_covariance(position_cov: F64, velocity_var: F64) -> F64:
     """Covariances (n, 6, 6) of tracks born from one cluster each: position as measured, velocity unknown."""
     out = np.zeros((len(position_cov), 6, 6))
