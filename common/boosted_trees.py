@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar, Self
 
 import numba
 import numpy as np
@@ -66,11 +66,25 @@ class BoostedTrees:
     missing_left: npt.NDArray[np.bool_]
     value: F64
 
+    #: what a kind of trees judges, set by each subclass: the rows' columns, the setting that
+    #: chooses its file, the script that trains it again, and the model bundled with the code
+    FEATURES: ClassVar[tuple[str, ...]] = ()
+    SETTING: ClassVar[str] = ""
+    SCRIPT: ClassVar[str] = ""
+    BUILTIN: ClassVar[Path] = Path()
+
     @classmethod
-    def read(cls, path: str | Path, features: tuple[str, ...], setting: str, script: str) -> BoostedTrees:
-        """An exported model for ``features``; a file that is not one, or was trained on other features,
-        is named with the ``setting`` that chose it and the ``script`` that trains it again."""
-        path = Path(path)
+    def configured(cls, setting: str) -> Self | None:
+        """The setting's trees: "" for none, "builtin" for the bundled model, or a file."""
+        if not setting:
+            return None
+        return cls.load(cls.BUILTIN if setting == "builtin" else setting)
+
+    @classmethod
+    def load(cls, path: str | Path) -> Self:
+        """An exported model of ``FEATURES``; a file that is not one, or was trained on other features,
+        is named with the ``SETTING`` that chose it and the ``SCRIPT`` that trains it again."""
+        path, setting, script, features = Path(path), cls.SETTING, cls.SCRIPT, cls.FEATURES
         try:
             data = json.loads(path.read_text())
             names = tuple(data["features"])

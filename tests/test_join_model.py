@@ -11,7 +11,7 @@ from conftest import load_script
 from sklearn.ensemble import HistGradientBoostingClassifier
 
 from common.errors import ConfigError
-from services.voxel_mapper.join_model import BUILTIN, JoinModel, load_join_model
+from services.voxel_mapper.join_model import BUILTIN, JoinModel
 from services.voxel_mapper.part_pairs import FEATURES
 from tests.test_voxel_mapper import BLUE, GLASS, GREY, RED, box, cloud, ego, mapper, road
 
@@ -42,8 +42,8 @@ def test_a_model_file_that_is_not_one_or_of_other_features_is_named(tmp_path: Pa
     moved.write_text(json.dumps(other))
     with pytest.raises(ConfigError, match=r"other\.json was trained on features"):
         JoinModel.load(moved)
-    assert load_join_model("") is None
-    assert isinstance(load_join_model("builtin"), JoinModel)
+    assert JoinModel.configured("") is None
+    assert isinstance(JoinModel.configured("builtin"), JoinModel)
 
 
 def test_each_voxel_belongs_to_the_nearest_box_within_reach() -> None:

@@ -15,7 +15,7 @@ from common.evaluation.evaluate import evaluate_recording
 from common.messages import Clusters, EgoMotion
 from services.demo import BUNDLED
 from services.pipeline import process_file
-from services.tracker.motion_model import BUILTIN, FEATURES, MotionModel, load_motion_model
+from services.tracker.motion_model import BUILTIN, FEATURES, MotionModel
 from services.voxel_mapper.join_model import BUILTIN as JOIN_MODEL
 
 train = load_script("train_motion_model")
@@ -30,8 +30,8 @@ def test_a_model_file_that_is_not_one_or_of_other_features_is_named(tmp_path: Pa
         MotionModel.load(JOIN_MODEL)  # the mapper's trees judge pairs of parts, not tracks
     with pytest.raises(ConfigError, match=r"tracker\.motion_model: .*missing\.json"):
         new_tracker(motion_model=str(tmp_path / "missing.json"))
-    assert load_motion_model("") is None
-    assert isinstance(load_motion_model("builtin"), MotionModel)
+    assert MotionModel.configured("") is None
+    assert isinstance(MotionModel.configured("builtin"), MotionModel)
     assert json.loads(BUILTIN.read_text())["features"] == list(FEATURES)
 
 

@@ -55,14 +55,15 @@ FEATURES: tuple[str, ...] = (
 
 
 class MotionModel(BoostedTrees):
-    """The trees over ``FEATURES``: the chance that each track is on a moving object."""
+    """The trees over ``FEATURES``: the chance that each track is on a moving object.
 
-    @classmethod
-    def load(cls, path: str | Path) -> MotionModel:
-        """Read an exported model; a file that is not one, or was trained on other features, is named."""
-        model = cls.read(path, FEATURES, "tracker.motion_model", "scripts/train_motion_model.py")
-        assert isinstance(model, MotionModel)
-        return model
+    ``tracker.motion_model``: "" for the rule (labelling.py), "builtin" for the bundled model, or a file.
+    """
+
+    FEATURES = FEATURES
+    SETTING = "tracker.motion_model"
+    SCRIPT = "scripts/train_motion_model.py"
+    BUILTIN = BUILTIN
 
 
 @dataclass(frozen=True)
@@ -75,16 +76,9 @@ class LearnedLabel:
     corners: bool = True  # corners sure of its pace also turn it moving, as in the rule (labelling.by_corners)
 
 
-def load_motion_model(setting: str) -> MotionModel | None:
-    """``tracker.motion_model``: "" for the rule (labelling.py), "builtin" for the bundled model, or a file."""
-    if not setting:
-        return None
-    return MotionModel.load(BUILTIN if setting == "builtin" else setting)
-
-
 def learned_label(setting: str, on: float, off: float, corners: bool = True) -> LearnedLabel | None:
     """The configured trees with their hysteresis; None for the rule."""
-    model = load_motion_model(setting)
+    model = MotionModel.configured(setting)
     return None if model is None else LearnedLabel(model, on, off, corners)
 
 

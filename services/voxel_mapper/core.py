@@ -39,7 +39,7 @@ from common.messages import Cluster, Clusters, EgoMotion, PointCloud
 from services.voxel_mapper.apart import NEVER_APART, Apart, ApartRule, PartMotion
 from services.voxel_mapper.flood_fill import flood_fill, touching_pairs
 from services.voxel_mapper.groups import split_groups
-from services.voxel_mapper.join_model import JoinModel, load_join_model
+from services.voxel_mapper.join_model import JoinModel
 from services.voxel_mapper.linkage import Learned, join_parts
 from services.voxel_mapper.refinement import aggregate, remove_noise
 from services.voxel_mapper.skyline import cut_low_parts
@@ -150,7 +150,7 @@ class VoxelMapper:
                    aggregate_in_turn_m=v.aggregate_in_turn_m, circular_hue=v.circular_hue,
                    apart=ApartRule(v.apart_min_corners, v.apart_across_mps, v.apart_sigma_k, v.apart_still_mps,
                                    v.apart_samples, cfg.tracker.corner_across_std_m),
-                   join_model=load_join_model(v.join_model), join_probability=v.join_probability,
+                   join_model=JoinModel.configured(v.join_model), join_probability=v.join_probability,
                    join_veto=v.join_veto)
 
     def process(self, cloud: PointCloud, ego: EgoMotion) -> Clusters:

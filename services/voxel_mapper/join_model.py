@@ -17,18 +17,12 @@ BUILTIN = Path(__file__).with_name("join_model.json")
 
 
 class JoinModel(BoostedTrees):
-    """The trees over ``part_pairs.FEATURES``: the chance that each pair of parts is one object."""
+    """The trees over ``part_pairs.FEATURES``: the chance that each pair of parts is one object.
 
-    @classmethod
-    def load(cls, path: str | Path) -> JoinModel:
-        """Read an exported model; a file that is not one, or was trained on other features, is named."""
-        model = cls.read(path, FEATURES, "voxel.join_model", "scripts/train_join_model.py")
-        assert isinstance(model, JoinModel)
-        return model
+    ``voxel.join_model``: "" for the share rule alone, "builtin" for the bundled model, or a file.
+    """
 
-
-def load_join_model(setting: str) -> JoinModel | None:
-    """``voxel.join_model``: "" for the share rule alone, "builtin" for the bundled model, or a file."""
-    if not setting:
-        return None
-    return JoinModel.load(BUILTIN if setting == "builtin" else setting)
+    FEATURES = FEATURES
+    SETTING = "voxel.join_model"
+    SCRIPT = "scripts/train_join_model.py"
+    BUILTIN = BUILTIN
