@@ -23,8 +23,6 @@ objects joined, is the one that loses walkers. The file holds the trees' nodes, 
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -38,9 +36,9 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "scripts"))
 
 from sweep_tracker import load_run  # noqa: E402
+from tree_training import train  # noqa: E402
 
 from common.boosted_trees import export as export_trees  # noqa: E402
-from common.progress import progress  # noqa: E402
 from services.pipeline import config_for  # noqa: E402
 from services.voxel_mapper import VoxelMapper  # noqa: E402
 from services.voxel_mapper.core import PartsSeen  # noqa: E402
@@ -140,26 +138,11 @@ def export(model: Any) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("runs", nargs="+", type=Path, help="run recordings with ground truth (*_run.mcap)")
-    parser.add_argument("--out", type=Path, required=True, help="the model file to write (JSON)")
-    parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
-                        help="configuration over each run's own while its parts are mapped again")
-    args = parser.parse_args(argv)
-    from sklearn.ensemble import HistGradientBoostingClassifier  # the dev extra: training only
-
-    rows, same = [], []
-    for path in progress(args.runs, len(args.runs), "mapping runs"):
-        x, y = run_rows(path, args.sets)
-        rows.append(x)
-        same.append(y)
-    x, y = np.concatenate(rows), np.concatenate(same)
-    if len(np.unique(y)) < 2:
-        print(f"train_join_model: {len(y)} pairs, all one answer; nothing to learn", file=sys.stderr)
+    trained = train(argv, __doc__, "its parts are mapped again", run_rows, FEATURES, TREES)
+    if trained is None:
         return 1
-    model = HistGradientBoostingClassifier(**TREES).fit(x, y)
-    args.out.write_text(json.dumps(export(model), separators=(",", ":")) + "\n")
-    print(f"{len(y)} linked pairs, {100 * y.mean():.1f} % one object; {model.n_iter_} trees -> {args.out}")
+    model, y, out = trained
+    print(f"{len(y)} linked pairs, {100 * y.mean():.1f} % one object; {model.n_iter_} trees -> {out}")
     return 0
 
 

@@ -22,8 +22,6 @@ file holds its trees' nodes (common/boosted_trees.py); nothing is pickled.
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -37,11 +35,10 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "scripts"))
 
 from sweep_tracker import load_run  # noqa: E402
+from tree_training import train  # noqa: E402
 
-from common.boosted_trees import export  # noqa: E402
 from common.evaluation.evaluate import matched_frames  # noqa: E402
 from common.evaluation.matching import FrameMatch  # noqa: E402
-from common.progress import progress  # noqa: E402
 from services.pipeline import config_for  # noqa: E402
 from services.tracker import Tracker  # noqa: E402
 from services.tracker.motion_model import FEATURES  # noqa: E402
@@ -102,28 +99,11 @@ def run_rows(path: Path, sets: Sequence[str] = ()) -> tuple[F64, npt.NDArray[np.
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("runs", nargs="+", type=Path, help="run recordings with ground truth (*_run.mcap)")
-    parser.add_argument("--out", type=Path, required=True, help="the model file to write (JSON)")
-    parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
-                        help="configuration over each run's own while its clusters are tracked again")
-    args = parser.parse_args(argv)
-    from sklearn.ensemble import HistGradientBoostingClassifier  # the dev extra: training only
-
-    rows, answers = [], []
-    for path in progress(args.runs, len(args.runs), "tracking runs"):
-        x, y = run_rows(path, args.sets)
-        rows.append(x)
-        answers.append(y)
-    x, y = np.concatenate(rows), np.concatenate(answers)
-    if len(np.unique(y)) < 2:
-        print(f"train_motion_model: {len(y)} rows, all one answer; nothing to learn", file=sys.stderr)
+    trained = train(argv, __doc__, "its clusters are tracked again", run_rows, FEATURES, TREES, RISING)
+    if trained is None:
         return 1
-    rising = [int(name in RISING) for name in FEATURES]
-    model = HistGradientBoostingClassifier(**TREES, monotonic_cst=rising).fit(x, y)
-    args.out.write_text(json.dumps(export(model, FEATURES), separators=(",", ":")) + "\n")
-    share = 100 * y.mean()
-    print(f"{len(y)} tracked track-frames, {share:.1f} % on moving objects; {model.n_iter_} trees -> {args.out}")
+    model, y, out = trained
+    print(f"{len(y)} tracked track-frames, {100 * y.mean():.1f} % on moving objects; {model.n_iter_} trees -> {out}")
     return 0
 
 
