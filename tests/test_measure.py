@@ -78,6 +78,26 @@ def test_a_speed_trace_follows_one_moving_object_frame_by_frame(tmp_path: Path) 
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_speed_errors_are_the_frames_the_evaluations_rmse_is_taken_over(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """scripts/speed_errors.py: every true moving frame's error, split by the line of sight, as evaluate pairs them."""
+    script = load_script("speed_errors")
+    run = tmp_path / "urban-s7_run.mcap"
+    assert process_file(BUNDLED, run, max_frames=16, with_frames=False) == 16
+    speed = evaluate_recording(run)["speed"]
+    errors = script.speed_errors(run, [])
+    assert len(errors) == speed["pairs"] > 0
+    assert script.rms([e.total for e in errors]) == pytest.approx(speed["rmse_mps"])
+    parts = [e.along**2 + e.across**2 + e.vertical**2 for e in errors]
+    assert parts == pytest.approx([e.total**2 for e in errors])  # the split loses nothing
+    assert all(e.range_m > 3.0 and e.true_speed >= 1.0 for e in errors)  # moving objects in the volume
+    assert script.main([str(run), "--top", "2"]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[0].startswith(f"{speed['pairs']} true moving frames: RMSE {speed['rmse_mps']:.3f}")
+    assert len(printed) == 4 and printed[-1].startswith("these 2 carry")
+
+
 def test_a_sweep_gives_the_figures_evaluate_gives_the_restarted_run(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
