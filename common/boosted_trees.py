@@ -82,9 +82,15 @@ class BoostedTrees:
 
     @classmethod
     def load(cls, path: str | Path) -> Self:
-        """An exported model of ``FEATURES``; a file that is not one, or was trained on other features,
-        is named with the ``SETTING`` that chose it and the ``SCRIPT`` that trains it again."""
-        path, setting, script, features = Path(path), cls.SETTING, cls.SCRIPT, cls.FEATURES
+        """An exported model of ``FEATURES``, read as ``read`` reads one."""
+        return cls.read(path, cls.FEATURES, cls.SETTING, cls.SCRIPT)
+
+    @classmethod
+    def read(cls, path: str | Path, features: tuple[str, ...], setting: str, script: str) -> Self:
+        """An exported model for ``features``; a file that is not one, or was trained on other features,
+        is named with the ``setting`` that chose it and the ``script`` that trains it again. (Session
+        55's tracker calls this, and ``services.tracker.benchmark --against`` runs it on today's common/.)"""
+        path = Path(path)
         try:
             data = json.loads(path.read_text())
             names = tuple(data["features"])
