@@ -27,8 +27,8 @@ def train(
 ) -> tuple[Any, npt.NDArray[np.int64], Path] | None:  # fmt: skip
     """Parse ``argv`` (runs, ``--out``, ``--set``), gather every run's rows, fit the trees (bound to
     rise with the ``rising`` features) and write them to ``--out``: the model, the answers and the
-    file; None, said on stderr, when the answers are all one (nothing to learn). ``again`` says what happens to a
-    run's recorded stage while ``--set`` holds ("its clusters are tracked again")."""
+    file; None, said on stderr, when the answers are all one (nothing to learn). ``again`` says
+    what happens to a run's recorded stage while ``--set`` holds ("its clusters are tracked again")."""
     parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", nargs="+", type=Path, help="run recordings with ground truth (*_run.mcap)")
     parser.add_argument("--out", type=Path, required=True, help="the model file to write (JSON)")
