@@ -138,12 +138,8 @@ def export(model: Any) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    trained = train(argv, __doc__, "its parts are mapped again", run_rows, FEATURES, TREES)
-    if trained is None:
-        return 1
-    model, y, out = trained
-    print(f"{len(y)} linked pairs, {100 * y.mean():.1f} % one object; {model.n_iter_} trees -> {out}")
-    return 0
+    return train(argv, __doc__, "its parts are mapped again", run_rows, FEATURES, TREES,
+                 "{rows} linked pairs, {share:.1f} % one object")
 
 
 if __name__ == "__main__":

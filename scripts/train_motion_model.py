@@ -99,12 +99,8 @@ def run_rows(path: Path, sets: Sequence[str] = ()) -> tuple[F64, npt.NDArray[np.
 
 
 def main(argv: list[str] | None = None) -> int:
-    trained = train(argv, __doc__, "its clusters are tracked again", run_rows, FEATURES, TREES, RISING)
-    if trained is None:
-        return 1
-    model, y, out = trained
-    print(f"{len(y)} tracked track-frames, {100 * y.mean():.1f} % on moving objects; {model.n_iter_} trees -> {out}")
-    return 0
+    return train(argv, __doc__, "its clusters are tracked again", run_rows, FEATURES, TREES,
+                 "{rows} tracked track-frames, {share:.1f} % on moving objects", RISING)
 
 
 if __name__ == "__main__":

@@ -23,12 +23,13 @@ Rows = tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]
 
 def train(
     argv: list[str] | None, doc: str | None, again: str, run_rows: Callable[[Path, Sequence[str]], Rows],
-    features: tuple[str, ...], trees: dict[str, Any], rising: Sequence[str] = (),
-) -> tuple[Any, npt.NDArray[np.int64], Path] | None:  # fmt: skip
+    features: tuple[str, ...], trees: dict[str, Any], summary: str, rising: Sequence[str] = (),
+) -> int:  # fmt: skip
     """Parse ``argv`` (runs, ``--out``, ``--set``), gather every run's rows, fit the trees (bound to
-    rise with the ``rising`` features) and write them to ``--out``: the model, the answers and the
-    file; None, said on stderr, when the answers are all one (nothing to learn). ``again`` says
-    what happens to a run's recorded stage while ``--set`` holds ("its clusters are tracked again")."""
+    rise with the ``rising`` features), write them to ``--out`` and print ``summary`` (formatted
+    with ``rows`` and ``share``, the percentage answered 1): the exit code, 1 when the answers are
+    all one (nothing to learn). ``again`` says what happens to a run's recorded stage while
+    ``--set`` holds ("its clusters are tracked again")."""
     parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", nargs="+", type=Path, help="run recordings with ground truth (*_run.mcap)")
     parser.add_argument("--out", type=Path, required=True, help="the model file to write (JSON)")
@@ -41,8 +42,9 @@ def train(
     x, y = np.concatenate([r for r, _ in gathered]), np.concatenate([a for _, a in gathered])
     if len(np.unique(y)) < 2:
         print(f"{Path(sys.argv[0]).stem}: {len(y)} rows, all one answer; nothing to learn", file=sys.stderr)
-        return None
+        return 1
     bounds = {"monotonic_cst": [int(name in rising) for name in features]} if rising else {}
     model = HistGradientBoostingClassifier(**trees, **bounds).fit(x, y)
     args.out.write_text(json.dumps(export(model, features), separators=(",", ":")) + "\n")
-    return model, y, args.out
+    print(f"{summary.format(rows=len(y), share=100 * y.mean())}; {model.n_iter_} trees -> {args.out}")
+    return 0
