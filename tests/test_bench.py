@@ -26,6 +26,7 @@ def test_bench_json_has_every_figure() -> None:
     assert set(report["stages"]) == STAGES
     assert all(0 < s["p50_ms"] <= s["p95_ms"] for s in report["stages"].values())
     assert report["process_hz"] > 0
+    assert report["first_obstacles_s"] > 0
     assert report["distributed_hz"] > 0, "no obstacles reached the recorder in the distributed run"
     assert 0 < report["e2e_ms"]["p50"] <= report["e2e_ms"]["p95"]
     assert set(report["dropped"]) == STAGES
