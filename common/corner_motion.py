@@ -36,6 +36,12 @@ MAX_GAP: int = 2
 SHARED: float = 0.25
 #: scale of the median absolute deviation to a normal distribution's sigma.
 MAD_SIGMA: float = 1.4826
+#: a corner whose new position lies further off the line through its last three or more than this
+#: many of its range's sigmas slid onto another surface: its history starts again there (0: never).
+#: KLT follows a walker's edge onto the walker two metres behind him as they pass, and the line
+#: through both read 5 m/s away from the camera (synthetic crossing-s45; tracking.md, "Session 57").
+#: 2, 4 and 5 measured.
+OFF_LINE_SIGMAS: float = 3.0
 
 
 @dataclass(frozen=True)
@@ -119,7 +125,7 @@ class CornerHistory:
             self._resize(slice(0, self._rows), 2 * (self._rows + len(ids)))
         if not _in_order(self.ids, ids):  # an id below the last row's that has no row: rows in between
             self._insert(ids)
-        rows, empty = _record(*self._arrays(), self._rows, ids, xyz, std, clock, MAX_GAP)
+        rows, empty = _record(*self._arrays(), self._rows, ids, xyz, std, clock, MAX_GAP, OFF_LINE_SIGMAS)
         self._rows = rows
         self._views()
         if empty > max(64, rows // 2):
@@ -181,6 +187,7 @@ def _in_order(ids: NDArray, new_ids: NDArray) -> bool:
 def _record(
     ids: NDArray, xy: NDArray, t: NDArray, n: NDArray, w: NDArray, missed: NDArray, now: NDArray, std: NDArray,
     rows: int, new_ids: NDArray, new_xyz: NDArray, new_std: NDArray, clock: float, max_gap: int,
+    off_line_sigmas: float,
 ) -> tuple[int, int]:  # fmt: skip
     """This frame's corners written into their rows in place (``_in_order`` holds), new ones appended
     after the last; an unseen corner is kept as it was for ``max_gap`` frames, then its row emptied.
@@ -193,6 +200,9 @@ def _record(
             ids[i], n[i] = new_ids[j], 0
             rows += 1
         if j < new_ids.shape[0] and new_ids[j] == ids[i]:
+            gate = off_line_sigmas * max(new_std[j], std[i])
+            if gate > 0.0 and n[i] >= 3 and _off_line(xy, t, n[i], w[i], i, new_xyz[j, 0], new_xyz[j, 1], clock) > gate:
+                n[i] = 0  # slid onto another surface (an occluding edge): starts again there
             if n[i] == 0:  # new, or forgotten and back: starts again
                 w[i] = 0
             k = w[i] % HISTORY
@@ -213,31 +223,44 @@ def _record(
 
 
 @numba.njit(cache=True)
+def _line(xy: NDArray, t: NDArray, n: int, w: int, r: int) -> tuple[float, float, float, float, float, float]:
+    """Row ``r``'s least-squares line through its last ``n`` positions (a ring that ``w`` writes have
+    gone round: ``CornerHistory``): mean time, mean x and y, the slopes of x and y, and sum (t - mean t)^2."""
+    t_mean = x_mean = y_mean = 0.0
+    for q in range(w - n, w):  # oldest first
+        k = q % HISTORY
+        t_mean += t[r, k]
+        x_mean += xy[r, k, 0]
+        y_mean += xy[r, k, 1]
+    t_mean, x_mean, y_mean = t_mean / n, x_mean / n, y_mean / n
+    tt = tx = ty = 0.0
+    for q in range(w - n, w):
+        k = q % HISTORY
+        d = t[r, k] - t_mean
+        tt += d * d
+        tx += d * (xy[r, k, 0] - x_mean)
+        ty += d * (xy[r, k, 1] - y_mean)
+    tt = max(tt, 1e-12)
+    return t_mean, x_mean, y_mean, tx / tt, ty / tt, tt
+
+
+@numba.njit(cache=True)
+def _off_line(xy: NDArray, t: NDArray, n: int, w: int, r: int, x: float, y: float, clock: float) -> float:
+    """How far (m) a new position at ``clock`` lies from where row ``r``'s line puts it."""
+    t_mean, x_mean, y_mean, vx, vy, _ = _line(xy, t, n, w, r)
+    return np.hypot(x - (x_mean + vx * (clock - t_mean)), y - (y_mean + vy * (clock - t_mean)))
+
+
+@numba.njit(cache=True)
 def _fit_lines(xy: NDArray, t: NDArray, n: NDArray, w: NDArray, rows: NDArray) -> tuple[NDArray, NDArray]:
-    """Least-squares slopes of x and y against time over each row's last ``n`` positions (a ring that
-    ``w`` writes have gone round: ``CornerHistory``), and the factor 1 / sqrt(sum (t - mean t)^2) that
-    turns a position's doubt into the slope's. Compiled: the same in numpy over every corner took a
-    millisecond a frame."""
+    """Least-squares slopes of x and y against time over each row's last ``n`` positions, and the
+    factor 1 / sqrt(sum (t - mean t)^2) that turns a position's doubt into the slope's. Compiled:
+    the same in numpy over every corner took a millisecond a frame."""
     slope, factor = np.zeros((rows.shape[0], 2)), np.zeros(rows.shape[0])
     for i in range(rows.shape[0]):
         r = rows[i]
-        first = w[r] - n[r]
-        t_mean = x_mean = y_mean = 0.0
-        for q in range(first, w[r]):  # oldest first
-            k = q % HISTORY
-            t_mean += t[r, k]
-            x_mean += xy[r, k, 0]
-            y_mean += xy[r, k, 1]
-        t_mean, x_mean, y_mean = t_mean / n[r], x_mean / n[r], y_mean / n[r]
-        tt = tx = ty = 0.0
-        for q in range(first, w[r]):
-            k = q % HISTORY
-            d = t[r, k] - t_mean
-            tt += d * d
-            tx += d * (xy[r, k, 0] - x_mean)
-            ty += d * (xy[r, k, 1] - y_mean)
-        tt = max(tt, 1e-12)
-        slope[i, 0], slope[i, 1], factor[i] = tx / tt, ty / tt, 1.0 / np.sqrt(tt)
+        _, _, _, slope[i, 0], slope[i, 1], tt = _line(xy, t, n[r], w[r], r)
+        factor[i] = 1.0 / np.sqrt(tt)
     return slope, factor
 
 

@@ -84,14 +84,33 @@ def _line(history: CornerHistory, corner: int) -> np.ndarray:
 
 def test_a_corner_followed_longer_than_its_history_is_fitted_over_its_last_positions_only() -> None:
     # it stands at x = 0 for ten frames (0-9), then walks away at 2 m/s: a line through frames 9 on;
-    # once its ring holds none of frames 0-8, the fit is that walk alone
+    # once its ring holds none of frames 0-8, the fit is that walk alone (its range doubtful enough
+    # that setting off is not taken for a slide onto another surface: OFF_LINE_SIGMAS)
     history = CornerHistory()
     for k in range(10 + HISTORY):
         x = 2.0 * PERIOD_S * max(k - 9, 0)
-        history.update(np.array([3]), np.array([[x, 0.0, 1.0]]), np.array([0.05]), PERIOD_S * k, epoch=0)
+        history.update(np.array([3]), np.array([[x, 0.0, 1.0]]), np.array([0.5]), PERIOD_S * k, epoch=0)
         if k == 8 + HISTORY - 1:  # frames 8 to 15 in the ring: frame 8 still pulls the line down
             assert _line(history, 3)[0] < 2.0 - 1e-6
     np.testing.assert_allclose(_line(history, 3), [2.0, 0.0], atol=1e-9)
+
+
+def test_a_corner_sliding_onto_a_surface_behind_starts_its_history_again_there() -> None:
+    # corner 7 lies on a walker 17 m ahead walking away at 2 m/s; in frame 6 the image tracker
+    # follows his edge onto the walker 2 m behind him, who walks towards the camera at 1.5 m/s.
+    # Corner 8 is on a car driving away at 15 m/s the whole time: a line, however fast, is no slide.
+    history = CornerHistory()
+    for k in range(12):
+        near, far = 17.0 + 2.0 * PERIOD_S * k, 19.6 - 1.5 * PERIOD_S * k
+        x = near if k < 6 else far
+        car = 20.0 + 15.0 * PERIOD_S * k
+        history.update(np.array([7, 8]), np.array([[x, 0.0, 1.0], [car, 3.0, 1.0]]), np.full(2, 0.15), PERIOD_S * k, 0)
+        if k == 5:
+            np.testing.assert_allclose(_line(history, 7), [2.0, 0.0], atol=1e-9)
+    n = dict(zip(history.ids.tolist(), history.n.tolist(), strict=True))
+    assert n == {7: 6, 8: HISTORY}  # corner 7 from frame 6 on, the car's ring full
+    np.testing.assert_allclose(_line(history, 7), [-1.5, 0.0], atol=1e-9)
+    np.testing.assert_allclose(_line(history, 8), [15.0, 0.0], atol=1e-9)
 
 
 def test_an_id_below_the_followed_ones_gets_its_row_in_order_and_the_others_keep_their_histories() -> None:
