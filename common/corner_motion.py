@@ -2,7 +2,9 @@
 and the median velocity of the corners on a piece of the world (a track's cluster, a part of one).
 
 A corner followed in the image stays on the surface it was found on, so a line through its world
-positions is that surface's velocity, whatever the voxels around it were joined into. The median
+positions is that surface's velocity, whatever the voxels around it were joined into. Where it
+does not (at an occluding edge the image tracker can carry it onto the surface behind), its new
+position steps off that line, and its history starts again there (``OFF_LINE_SIGMAS``). The median
 over a piece's corners outvotes a neighbour's until they are half of them. Its doubt is what the
 stereo stage says of each corner's range (its disparity's doubt grows with the square of the
 range) carried through the line's fit, and shrunk by their number only as far as their errors are
