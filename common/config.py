@@ -277,6 +277,7 @@ class TrackerConfig:
     coast_min_age: int = 8  # ... if this many frames old (measured 0: a young track's wrong velocity coasted too)
     coast_max_speed_mps: float = 5.0  # ... and no faster (a car's rear is upright too; 3 measured the same)
     coast_moving_frames: int = 2  # ... labelled moving, it coasts this long, merged or not (3 measured); 0: off
+    coast_standing_frames: int = 1  # ... labelled standing, this long, merged or not (2, 3 measured alike); 0: off
     view_margin_m: float = 0.5  # a cluster this near (m) the image's side edge: followed at its far end (1.0: alike)
     corner_samples: int = 3  # a corner's velocity needs this many frames of it (4 until session 48; 5 measured); 0: off
     corner_min_count: int = 4  # a track's corners have an opinion when it holds this many (5 until session 43)

@@ -218,7 +218,7 @@ def test_a_walker_merged_into_his_neighbours_cluster_stays_tracked_for_a_few_fra
     # the first walker's track takes the joined cluster; the second stays reported where he stands
     coasting = new_tracker(coast_merged_frames=3, coast_min_age=8)
     assert walkers_then_merged(coasting, 5) == ["tracked"] * 3 + ["ghost"] * 2
-    assert walkers_then_merged(new_tracker(coast_merged_frames=0), 2) == ["ghost"] * 2
+    assert walkers_then_merged(new_tracker(coast_merged_frames=0, coast_standing_frames=0), 2) == ["ghost"] * 2
     # a track younger than coast_min_age turns ghost at once: its velocity is still a guess
     assert walkers_then_merged(new_tracker(coast_merged_frames=3, coast_min_age=20), 1) == ["ghost"]
     # one faster than coast_max_speed_mps too (a car's rear is upright as well)
@@ -253,10 +253,22 @@ def test_a_moving_walker_no_cluster_finds_for_two_frames_stays_tracked_where_he_
     assert [(s, m) for s, m, _ in coasting] == [("tracked", True)] * 2 + [("ghost", True), ("tracked", True)]
     assert max(off for _, _, off in coasting) < 0.3
     assert [s for s, _, _ in lost_for_frames(new_tracker(coast_moving_frames=0), 1.5, 1)] == ["ghost", "tracked"]
-    # a standing object's track does not coast: unseen, it may have gone (a phantom, a pole's
-    # fragment); it is a ghost at once, as it was
-    standing = lost_for_frames(new_tracker(coast_moving_frames=2), 0.0, 2)
+    # a standing object's track coasts by its own count, none here: a ghost at once
+    standing = lost_for_frames(new_tracker(coast_moving_frames=2, coast_standing_frames=0), 0.0, 2)
     assert [(s, m) for s, m, _ in standing] == [("ghost", False)] * 2 + [("tracked", False)]
+
+
+def test_a_standing_object_no_cluster_finds_for_a_frame_stays_tracked_where_it_stands() -> None:
+    # a far pole's cluster goes missing for a frame; its track stays reported, standing, where it stood
+    coasting = lost_for_frames(new_tracker(coast_standing_frames=1), 0.0, 2)
+    assert [(s, m) for s, m, _ in coasting] == [("tracked", False), ("ghost", False), ("tracked", False)]
+    assert max(off for _, _, off in coasting) < 0.1
+    assert [s for s, _, _ in lost_for_frames(new_tracker(coast_standing_frames=2), 0.0, 3)] == (
+        ["tracked"] * 2 + ["ghost", "tracked"]
+    )
+    # a track younger than coast_min_age turns ghost at once: it may be a phantom's
+    young = lost_for_frames(new_tracker(coast_standing_frames=1, coast_min_age=20), 0.0, 1)
+    assert [s for s, _, _ in young] == ["ghost", "tracked"]
 
 
 def test_unmatched_cluster_starts_a_new_acceptance_track() -> None:
