@@ -23,10 +23,16 @@ reports it for longer. Only one at a walker's or a cyclist's speed: a car's rear
 A walker's track labelled moving coasts as well, for ``Coasting.moving_frames``, whether or not a
 neighbour's box holds it: the segmentation loses a far walker for a frame or two (his voxels fall
 under the noise limit, or into a cluster centred elsewhere), and his filter, sure of his pace,
-knows where he walks better than a ghost is credited for. A standing track does not: unseen, it
-may have gone (a phantom, a pole's fragment). Found again far from its prediction, a coasting
-track restarts its speed window as a revived ghost does (core.py). Synthetic crossing held out:
-75.2 -> 77.9 % moving TP (docs/results/tracking.md, "Session 43").
+knows where he walks better than a ghost is credited for. Found again far from its prediction, a
+coasting track restarts its speed window as a revived ghost does (core.py). Synthetic crossing
+held out: 75.2 -> 77.9 % moving TP (docs/results/tracking.md, "Session 43").
+
+A standing upright track coasts too, for ``Coasting.standing_frames``: a far pole's cluster is
+missing or centred off it in a frame now and then, and its track knows where it stands. Session
+43 had left it a ghost at once (unseen, it may have gone: a phantom, a pole's fragment); held one
+frame, stationary recall rose on every seed set with obstacle precision within 0.001, and a
+phantom is kept from coasting by ``Coasting.min_age`` (younger tracks coasting cost precision;
+docs/results/tracking.md, "Session 58").
 """
 
 from __future__ import annotations
@@ -46,14 +52,7 @@ NDArray = npt.NDArray[Any]
 @dataclass(frozen=True)
 class Coasting:
     """How long an upright track may stay tracked while merged into a neighbour's cluster, or unseen while
-    labelled moving or standing, and from what age.
-
-    A far pole's cluster is missing or centred off it in a frame now and then (its voxels under the
-    noise limit, or joined to a walker behind it); its track, standing where it stood, was a ghost
-    for that frame and the pole unreported. Held one frame, stationary recall rose 0.5-1.5 points on
-    every set of seeds with obstacle precision within 0.001 and the moving labels unchanged
-    (docs/results/tracking.md, "Session 58").
-    """
+    labelled moving or standing, and from what age (the module's docstring says why each)."""
 
     frames: int = 0  # 0: never
     min_age: int = 0  # frames of track
