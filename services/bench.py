@@ -161,8 +161,8 @@ def _await_warm_graph(sup: Supervisor, session: zenoh.Session, vehicle: str, wor
                 seen += 1
                 warm_ns = max(end for stage, _, end in got.msg.timing if stage == "tracker")
             elif time.monotonic() - started > WARM_GRAPH_TIMEOUT_S:
-                raise RuntimeError(f"{seen} obstacle frames on the bus {WARM_GRAPH_TIMEOUT_S:.0f} s after the camera "
-                                   f"started; logs in {workdir / 'logs'}")
+                raise RuntimeError(f"{seen} obstacle frames on the bus {WARM_GRAPH_TIMEOUT_S:.0f} s after the graph "
+                                   f"was up; logs in {workdir / 'logs'}")
     finally:
         obstacles.close()
     return first_s, warm_ns
