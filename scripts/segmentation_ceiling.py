@@ -12,9 +12,13 @@ the ground truth, and are scored as ``evaluate`` scores them (in the paper's vol
 - ``nearest``: every clustered voxel within ``train_join_model.OWNER_REACH_M`` of an object's box
   goes to the nearest one, the rest keep their clusters: objects cut apart, each with its smear.
 - ``joins``: the flood fill's parts as they are, joined when most of their voxels lie nearest one
-  object (instead of ``voxel.join_share`` and the apart rule): the ceiling of any linkage.
+  object (instead of ``voxel.join_share`` and the apart rule), touching or not.
+- ``linked``: the same, but only pairs of parts the mapper links (neighbours, bridges and steps, as
+  ``linkage.part_links`` finds them) of at least ``--min-voxels`` each; with ``--reach R`` (2 or
+  more) also pairs with voxels up to R voxels apart along each axis: the ceiling of a linkage that
+  judges those pairs.
 
-Session 53's figures (docs/results/voxel.md) came from here.
+Session 53's figures (docs/results/voxel.md) came from here, and session 59's.
 """
 
 from __future__ import annotations
@@ -43,6 +47,8 @@ from services.pipeline import config_for  # noqa: E402
 from services.tracker import Tracker  # noqa: E402
 from services.voxel_mapper import VoxelMapper  # noqa: E402
 from services.voxel_mapper import core as mapper_core  # noqa: E402
+from services.voxel_mapper.flood_fill import neighbour_deltas, touching_pairs  # noqa: E402
+from services.voxel_mapper.linkage import part_links  # noqa: E402
 
 #: ``truth``: a voxel inside an object's box grown by this much (m) is the object's.
 GROWN_M: float = 0.15
@@ -64,14 +70,16 @@ def inside(points: npt.NDArray[np.float64], boxes: list[Box]) -> npt.NDArray[np.
 class Oracle:
     """The truth's boxes for the frame being mapped, and the mapper step it replaces."""
 
-    def __init__(self, mode: str) -> None:
+    def __init__(self, mode: str, min_voxels: int = 1, reach: int = 0) -> None:
         self.mode = mode
+        self.min_voxels = min_voxels
+        self.reach = reach
         self.boxes: list[Box] = []
         self._describe = mapper_core.describe
         self._join = mapper_core.join_parts
 
     def install(self) -> None:
-        if self.mode == "joins":
+        if self.mode in ("joins", "linked"):
             mapper_core.join_parts = self.join
         else:
             mapper_core.describe = self.describe
@@ -88,19 +96,41 @@ class Oracle:
             labels = np.where(clustered & (own >= 0), first + own, labels).astype(np.int32)
         return self._describe(vmap, labels, height)
 
-    def join(self, vmap: Any, labels: I32, n_clusters: int, *_: Any, **__: Any) -> I32:
+    def join(self, vmap: Any, labels: I32, n_clusters: int, position: Any, _min: int, _share: float,
+             bridge_voxels: int, step_voxels: int = 0, *_: Any, **__: Any) -> I32:
         members = np.flatnonzero(labels >= 0)
         whose = part_owners(vmap.centroids[members], labels[members], n_clusters, self.boxes)
-        first = np.full(len(self.boxes) + 1, -1)
-        root = np.arange(n_clusters)
-        for part in range(n_clusters):
-            if whose[part] >= 0:
-                if first[whose[part]] < 0:
-                    first[whose[part]] = part
-                root[part] = first[whose[part]]
+        if self.mode == "linked":
+            root = self._linked_roots(vmap, labels, members, n_clusters, position, bridge_voxels, step_voxels, whose)
+        else:
+            first = np.full(len(self.boxes) + 1, -1)
+            root = np.arange(n_clusters)
+            for part in range(n_clusters):
+                if whose[part] >= 0:
+                    if first[whose[part]] < 0:
+                        first[whose[part]] = part
+                    root[part] = first[whose[part]]
         out = labels.copy()
         out[members] = root[labels[members]]
         return out
+
+    def _linked_roots(self, vmap: Any, labels: I32, members: npt.NDArray[np.int64], n_clusters: int, position: Any,
+                      bridge_voxels: int, step_voxels: int, whose: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+        """Each part's representative once the pairs the truth calls one object are joined (union-find)."""
+        direct, stepped = part_links(vmap, labels, members, n_clusters, position, bridge_voxels, step_voxels)
+        packed = np.concatenate([direct[0], stepped[0]])
+        a, b = packed // n_clusters, packed % n_clusters
+        if self.reach >= 2:
+            near = touching_pairs(vmap, labels, neighbour_deltas(self.reach))
+            a, b = np.concatenate([a, near[:, 0]]), np.concatenate([b, near[:, 1]])
+        sizes = np.bincount(labels[members], minlength=n_clusters)
+        one = (sizes[a] >= self.min_voxels) & (sizes[b] >= self.min_voxels) & (whose[a] >= 0) & (whose[a] == whose[b])
+        root = np.arange(n_clusters)
+        for x, y in zip(a[one], b[one], strict=True):  # relabel y's group to x's, smallest label first
+            rx, ry = root[x], root[y]
+            if rx != ry:
+                root[root == max(rx, ry)] = min(rx, ry)
+        return root
 
 
 def run_figures(path: Path, oracle: Oracle, sets: list[str]) -> dict[str, Any]:
@@ -128,11 +158,13 @@ def run_figures(path: Path, oracle: Oracle, sets: list[str]) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", nargs="+", type=Path, help="run recordings with ground truth (*_run.mcap)")
-    parser.add_argument("--mode", choices=("truth", "nearest", "joins"), required=True)
+    parser.add_argument("--mode", choices=("truth", "nearest", "joins", "linked"), required=True)
+    parser.add_argument("--min-voxels", type=int, default=1, help="linked: the smallest parts joined")
+    parser.add_argument("--reach", type=int, default=0, help="linked: also parts this many voxels apart (2 or more)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="configuration over the run's own (session 53: voxel.join_model= for the share rule)")
     args = parser.parse_args(argv)
-    oracle = Oracle(args.mode)
+    oracle = Oracle(args.mode, args.min_voxels, args.reach)
     oracle.install()
     pooled: dict[str, list[Any]] = defaultdict(list)
     for path in args.runs:

@@ -15,8 +15,10 @@ from common.messages import Clusters, EgoMotion, GroundTruthObject, GroundTruthO
 from services.tracker import Tracker
 from services.voxel_mapper import VoxelMapper
 from services.voxel_mapper.colour import hsl_of
+from services.voxel_mapper.flood_fill import neighbour_deltas, touching_pairs
 from services.voxel_mapper.overhang import Overhang, frame_rows, overhangs
 from services.voxel_mapper.terrain import TerrainProfile
+from services.voxel_mapper.voxel_map import VoxelMap
 
 RED, BLUE, GREY, GREEN, GLASS = (200, 40, 30), (30, 50, 190), (110, 110, 105), (40, 190, 60), (60, 70, 90)
 #: no linkage of parts at all, neither the share rule nor the learned one: the flood fill's colours alone
@@ -225,6 +227,19 @@ def test_small_pieces_touching_only_each_other_add_up_to_a_cluster() -> None:
     assert [c.voxel_count for c in out.clusters] == [sum(c.voxel_count for c in pieces.clusters)]
     assert mapper(**COLOUR_ALONE).process(scene, ego()).clusters == []  # only into a big one: all dropped
     assert mapper(**COLOUR_ALONE, aggregate_in_turn_m=9.0).process(scene, ego()).clusters == []  # he is at 10 m
+
+
+def test_parts_one_empty_voxel_apart_touch_only_within_a_reach_of_two() -> None:
+    """scripts/segmentation_ceiling.py's ``--reach``: the pairs a linkage over near parts would judge."""
+    vmap = VoxelMap(0.25)
+    left, _ = box((5.0, 0.0, 0.5), (5.2, 0.45, 1.2), RED)
+    right, _ = box((5.55, 0.0, 0.5), (5.7, 0.45, 1.2), RED)  # from x 5.5: one empty voxel (5.25-5.5) between
+    points = np.concatenate([left, right])
+    vmap.integrate(points, noisy_colour(RED, len(points)), np.eye(4))
+    labels = np.where(vmap.centroids[:, 0] < 5.3, 0, 1).astype(np.int32)
+    assert len(touching_pairs(vmap, labels)) == 0
+    assert touching_pairs(vmap, labels, neighbour_deltas(2)).tolist() == [[0, 1]]
+    assert len(neighbour_deltas(2)) == 5**3 - 1
 
 
 def test_static_box_stays_fixed_in_the_world_while_the_vehicle_moves() -> None:

@@ -22,9 +22,10 @@ from services.voxel_mapper.voxel_map import CHROMA, EMPTY, VoxelMap, find
 I32 = npt.NDArray[np.int32]
 
 
-def neighbour_deltas() -> npt.NDArray[np.int64]:
-    """Key offsets of the 26 neighbours (the closed unit ball minus the centre)."""
-    steps = [(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1) if (i, j, k) != (0, 0, 0)]
+def neighbour_deltas(reach: int = 1) -> npt.NDArray[np.int64]:
+    """Key offsets of the voxels up to ``reach`` along each axis but the centre: the 26 neighbours at 1."""
+    span = range(-reach, reach + 1)
+    steps = [(i, j, k) for i in span for j in span for k in span if (i, j, k) != (0, 0, 0)]
     return np.array([(i << (2 * BITS)) + (j << BITS) + k for i, j, k in steps], dtype=np.int64)
 
 
@@ -109,10 +110,10 @@ def flood_fill(vmap: VoxelMap, candidate: npt.NDArray[np.bool_], epsilon: float)
                  rgb, hsl, chroma, vmap.circular_hue, float(epsilon))
 
 
-def touching_pairs(vmap: VoxelMap, labels: I32) -> npt.NDArray[np.int64]:
-    """Distinct pairs (a, b), a < b, of clusters with 26-neighbouring voxels."""
+def touching_pairs(vmap: VoxelMap, labels: I32, deltas: npt.NDArray[np.int64] = DELTAS) -> npt.NDArray[np.int64]:
+    """Distinct pairs (a, b), a < b, of clusters with 26-neighbouring voxels (or voxels ``deltas`` apart)."""
     members = np.flatnonzero(labels >= 0)
-    pairs = _contacts(members, labels, vmap.keys, vmap.table_keys, vmap.table_slots, vmap.shift, DELTAS)
+    pairs = _contacts(members, labels, vmap.keys, vmap.table_keys, vmap.table_slots, vmap.shift, deltas)
     if pairs.shape[0] == 0:
         return pairs
     packed = np.sort(pairs[:, 0] << 32 | pairs[:, 1])
