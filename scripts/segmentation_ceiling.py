@@ -116,7 +116,7 @@ class Oracle:
 
     def _linked_roots(self, vmap: Any, labels: I32, members: npt.NDArray[np.int64], n_clusters: int, position: Any,
                       bridge_voxels: int, step_voxels: int, whose: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
-        """Each part's representative once the pairs the truth calls one object are joined (union-find)."""
+        """Each part's label once the pairs the truth calls one object are joined (groups relabelled as they meet)."""
         direct, stepped = part_links(vmap, labels, members, n_clusters, position, bridge_voxels, step_voxels)
         packed = np.concatenate([direct[0], stepped[0]])
         a, b = packed // n_clusters, packed % n_clusters
