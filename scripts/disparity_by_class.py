@@ -89,7 +89,7 @@ def tally_frame(
     depth_band: tuple[float, float],
 ) -> None:
     """Add one frame's objects whose median true depth lies in ``depth_band`` (m) to their class's tally."""
-    band_of = np.minimum(row_distance(ids), EDGE_COLUMNS + 1) - 1
+    band_of = row_distance(ids) - 1  # 0, 1: the silhouette's columns; 2: inside
     error = estimate - truth
     for oid in np.unique(ids[ids >= 0]):
         mask = (ids == oid) & np.isfinite(truth)
