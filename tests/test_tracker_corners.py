@@ -47,7 +47,7 @@ def test_each_corner_gets_the_velocity_of_the_line_through_its_positions() -> No
     history = _history(HISTORY + 3, ids, start, velocity)
     ready = (history.n >= 6) & (history.missed == 0)
     assert ready.all()
-    fitted, factor = _fit_lines(history.xy, history.t, history.n, history.w, np.flatnonzero(ready))
+    fitted, factor = _fit_lines(history.fit, np.flatnonzero(ready))
     doubt = history.std * factor
     by_id = dict(zip(history.ids.tolist(), fitted, strict=True))
     for i, v in zip(ids, velocity, strict=True):
@@ -63,7 +63,7 @@ def test_a_corner_missing_a_frame_keeps_its_history_and_one_gone_longer_is_forgo
     gone = set(range(3, 3 + MAX_GAP + 1))
     history = _history(8, ids, start, velocity, skip={5: {1}} | {k: {2} for k in gone if k != 5} | {5: {1, 2}})
     ready = (history.n >= 6) & (history.missed == 0)
-    fitted, _ = _fit_lines(history.xy, history.t, history.n, history.w, np.flatnonzero(ready))
+    fitted, _ = _fit_lines(history.fit, np.flatnonzero(ready))
     n = dict(zip(history.ids.tolist(), history.n.tolist(), strict=True))
     assert n == {1: 7, 2: 2}  # corner 2 came back as new
     assert history.ids[ready].tolist() == [1]
@@ -77,9 +77,9 @@ def test_a_new_world_forgets_every_corner() -> None:
 
 
 def _line(history: CornerHistory, corner: int) -> np.ndarray:
-    """The fitted velocity of ``corner``'s line (it must have been seen this frame)."""
+    """The fitted velocity of ``corner``'s line, as last written."""
     row = int(np.flatnonzero(history.ids == corner)[0])
-    return _fit_lines(history.xy, history.t, history.n, history.w, np.array([row]))[0][0]
+    return _fit_lines(history.fit, np.array([row]))[0][0]
 
 
 def test_a_corner_followed_longer_than_its_history_is_fitted_over_its_last_positions_only() -> None:
@@ -121,6 +121,7 @@ def test_an_id_below_the_followed_ones_gets_its_row_in_order_and_the_others_keep
     assert history.n.tolist() == [1, 4, 3]
     assert history.missed.tolist() == [0, 0, 1]
     np.testing.assert_allclose(_line(history, 100), [1.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(_line(history, 101), [0.0, 1.0], atol=1e-9)  # unseen, moved down with its line
     np.testing.assert_allclose(history.now[1], [0.3, 0.0, 0.0])
     assert np.isnan(history.now[2]).all()
 

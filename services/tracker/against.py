@@ -29,10 +29,14 @@ from services.tracker.core import Tracker
 
 REPO = Path(__file__).resolve().parents[2]
 PACKAGE = "stereovox_rev"
+#: modules of ``common`` that hold the tracker's own compiled steps: taken from the revision too, so
+#: that a change to them is timed (``common``'s other modules are messages and configuration).
+KERNELS: tuple[str, ...] = ("corner_motion", "boosted_trees")
 
 
 def revision_tracker(rev: str, into: Path) -> ModuleType:
-    """``services/tracker`` as of ``rev``, importable as ``stereovox_rev.tracker``; its core module."""
+    """``services/tracker`` and the ``KERNELS`` as of ``rev``, importable as ``stereovox_rev.tracker``
+    and ``stereovox_rev.<kernel>``; its core module."""
     listing = subprocess.run(
         ["git", "-C", str(REPO), "ls-tree", "--name-only", f"{rev}:services/tracker"],
         capture_output=True, text=True, check=False,
@@ -47,13 +51,22 @@ def revision_tracker(rev: str, into: Path) -> ModuleType:
             continue
         show = ["git", "-C", str(REPO), "show", f"{rev}:services/tracker/{name}"]
         source = subprocess.run(show, capture_output=True, text=True, check=True).stdout
-        if name.endswith(".py"):
-            source = re.sub(r"\bservices\.tracker\b", f"{PACKAGE}.tracker", source)
-        (target / name).write_text(source)
+        (target / name).write_text(_renamed(source) if name.endswith(".py") else source)
+    for kernel in KERNELS:
+        show = ["git", "-C", str(REPO), "show", f"{rev}:common/{kernel}.py"]
+        got = subprocess.run(show, capture_output=True, text=True, check=False)
+        if got.returncode == 0:
+            (into / PACKAGE / f"{kernel}.py").write_text(_renamed(got.stdout))
     sys.path.insert(0, str(into))
     for loaded in [m for m in sys.modules if m == PACKAGE or m.startswith(PACKAGE + ".")]:
         del sys.modules[loaded]
     return importlib.import_module(f"{PACKAGE}.tracker.core")
+
+
+def _renamed(source: str) -> str:
+    """A revision's source importing the revision's tracker and kernels instead of this tree's."""
+    source = re.sub(r"\bservices\.tracker\b", f"{PACKAGE}.tracker", source)
+    return re.sub(rf"\bcommon\.({'|'.join(KERNELS)})\b", rf"{PACKAGE}.\1", source)
 
 
 def compare(rev: str, objects: int = 50, frames: int = 100, repeats: int = 3) -> dict[str, Any]:
