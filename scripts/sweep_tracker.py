@@ -17,7 +17,8 @@ printed beside each scenario's counts.
 
 ``--variants FILE`` reads one variant a line (a name, then its ``key=value`` settings; ``#``
 comments). Each variant prints one line per set of runs: pooled moving TP / FP / FN frames and
-speed RMSE, and the same per scenario.
+speed RMSE, stationary recall, obstacle precision and the per-track figures (``pooled``), and the
+same per scenario.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from common.evaluation import metrics  # noqa: E402
 from common.evaluation.evaluate import Evaluation, obstacle_figures  # noqa: E402
 from common.evaluation.inputs import RunInputs, cluster_boxes, read_inputs  # noqa: E402
 from common.messages import Clusters, EgoMotion, PointCloud  # noqa: E402
@@ -84,8 +86,10 @@ def score(run: LoadedRun, sets: list[str]) -> dict[str, Any]:
         if mapper is not None:
             run.inputs.clusters[f] = cluster_boxes(clusters)
         run.inputs.obstacles[f] = tracker.process(clusters, ego)
-    figures = obstacle_figures(run.inputs, Evaluation(result={}))
+    ev = Evaluation(result={})
+    figures = obstacle_figures(run.inputs, ev)
     moving, speed, segments = figures["moving"] or {}, figures["speed"] or {}, figures["segmentation"] or {}
+    counts = metrics.tally(ev.frames)  # what stationary recall and precision are pooled from
     return {
         "tp": int(moving.get("tp", 0)),
         "fp": int(moving.get("fp", 0)),
@@ -93,6 +97,13 @@ def score(run: LoadedRun, sets: list[str]) -> dict[str, Any]:
         "rmse_mps": speed.get("rmse_mps"),
         "pairs": int(speed.get("pairs", 0)),
         "one_cluster_pct": segments.get("one_cluster_pct"),
+        "stationary": counts.stationary,
+        "stationary_matched": counts.stationary_matched,
+        "stationary_moving": counts.stationary_moving,
+        "matched": counts.matched,
+        "phantoms": counts.phantoms,
+        "all_moving_tracks": (figures["moving_tracks"] or {}).get("recall") == 1.0,
+        "false_moving_tracks": int((figures["stationary_tracks"] or {}).get("false_moving", 0)),
     }
 
 
@@ -105,13 +116,23 @@ def _score_one(task: tuple[int, list[str]]) -> dict[str, Any]:
 
 
 def pooled(rows: list[dict[str, Any]]) -> str:
-    """TP / FP / FN summed, the speed RMSE pooled by pairs, and the mean one-cluster % where scored."""
+    """TP / FP / FN summed, the speed RMSE pooled by pairs, and the mean one-cluster % where scored;
+    then stationary recall / labelled moving (%) and obstacle precision from the summed counts, the
+    runs whose every moving track was labelled moving, and the stationary tracks called moving (fm)."""
     tp, fp, fn = (sum(r[k] for r in rows) for k in ("tp", "fp", "fn"))
     pairs = sum(r["pairs"] for r in rows)
     sq = sum(r["pairs"] * r["rmse_mps"] ** 2 for r in rows if r["pairs"])
     one = [r["one_cluster_pct"] for r in rows if r.get("one_cluster_pct") is not None]
     rmse = f" {np.sqrt(sq / pairs):.2f}" if pairs else ""
-    return f"{tp}/{fp}/{fn}{rmse}" + (f" one {np.mean(one):.1f}" if one else "")
+    out = f"{tp}/{fp}/{fn}{rmse}" + (f" one {np.mean(one):.1f}" if one else "")
+    keys = ("stationary", "stationary_matched", "stationary_moving", "matched", "phantoms")
+    standing, found, called, matched, phantoms = (sum(r[k] for r in rows) for k in keys)
+    if standing:
+        out += f" still {100 * found / standing:.1f}/{100 * called / max(found, 1):.1f}"
+    if matched + phantoms:
+        out += f" prec {matched / (matched + phantoms):.3f}"
+    full = sum(r["all_moving_tracks"] for r in rows)
+    return out + f" all {full}/{len(rows)} fm {sum(r['false_moving_tracks'] for r in rows)}"
 
 
 def line(name: str, results: dict[str, dict[str, dict[str, Any]]]) -> str:

@@ -113,9 +113,14 @@ def test_a_sweep_gives_the_figures_evaluate_gives_the_restarted_run(
     for name, sets in (("base", []), ("late", ["tracker.moving_min_frames=12"])):
         restarted = tmp_path / f"{name}_run.mcap"
         process_file(runs / "urban-s7_run.mcap", restarted, with_frames=False, resume_from="tracker", sets=sets)
-        moving = evaluate_recording(restarted)["moving"]
+        result = evaluate_recording(restarted)
+        moving, still, found = result["moving"], result["stationary"], result["obstacles"]
         got = swept[name]["runs"]["held"]["urban-s7"]
         assert (got["tp"], got["fp"], got["fn"]) == (moving["tp"], moving["fp"], moving["fn"])
+        # the counts stationary recall and precision are pooled from, over many runs
+        assert got["stationary_matched"] / got["stationary"] == pytest.approx(still["recall"])
+        assert got["matched"] / (got["matched"] + got["phantoms"]) == pytest.approx(found["precision"])
+        assert got["all_moving_tracks"] == (result["moving_tracks"]["recall"] == 1.0)
     base, late = (swept[n]["runs"]["held"]["urban-s7"] for n in ("base", "late"))
     assert base["tp"] > late["tp"]  # a car is called moving by frame 16 only when tracks may be labelled young
     printed = capsys.readouterr().out.splitlines()
