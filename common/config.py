@@ -244,6 +244,8 @@ class TrackerConfig:
     left_behind_frames: int = 3  # a track whose footprint this many frames back others now hold slid; 0 = off
     left_behind_share: float = 0.5  # ... if they hold more than this share of it: it starts again from rest
     young_jump_frames: int = 0  # ... a track younger than this (frames) is not paired with such a cluster; 0 = off
+    jump_retake_m: float = 1.5  # a moving track left unpaired takes a cluster left over this near (m); 0 = off
+    jump_retake_misses: int = 2  # ... if unseen at most this many frames before (1.0 m or 0 frames: fewer retaken)
     velocity_faces: int = 6  # the reported velocity blends in the line through this many faces or more; 0 = off
     part_min_voxels: int = 0  # a cluster two known tracks lie in is parted, pieces of this many voxels or more; 0 = off
     part_min_age: int = 5  # ... between tracks at least this old (frames)

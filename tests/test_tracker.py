@@ -398,6 +398,30 @@ def test_a_young_track_is_not_carried_onto_a_cluster_it_would_re_anchor_on() -> 
     assert ids_after_a_step(4, young_jump_frames=4)[4:] == [[1], [1], [1]]
 
 
+def after_a_lurch(retake_m: float) -> list[list[tuple[int, str, float]]]:
+    """A cyclist at 6 m/s whose cluster lies 1.2 m further ahead from frame 15 on (more of him in
+    view): further from its settled track's prediction than association pairs."""
+    tracker, rng = new_tracker(jump_retake_m=retake_m), np.random.default_rng(1)
+    position, seen = np.array([8.0, -3.0, 0.8]), []
+    for k in range(20):
+        position = position + np.array([0.6, 0.0, 0.0])
+        shown = position + np.array([1.2 if k >= 15 else 0.0, 0.0, 0.0]) + rng.normal(scale=[0.03, 0.03, 0.01])
+        out = step(tracker, k, [cluster(0, shown, size=(1.8, 0.6, 1.6))])
+        seen.append([(o.id, o.state, o.speed) for o in out.obstacles])
+    return seen
+
+
+def test_a_moving_track_takes_its_cluster_back_when_it_lurches_ahead() -> None:
+    kept, born = after_a_lurch(1.5), after_a_lurch(0.0)
+    assert [(i, state) for i, state, _ in kept[14]] == [(1, "tracked")]
+    for frame in kept[15:]:  # re-anchored on it, its speed kept
+        ((i, state, speed),) = frame
+        assert (i, state) == (1, "tracked") and speed == pytest.approx(6.0, abs=0.5)
+    # without it the cluster starts a track of its own at rest, the cyclist's goes on as a ghost
+    assert [(i, state) for i, state, _ in born[15]] == [(1, "ghost"), (2, "acceptance")]
+    assert born[16][1][2] < 4.0
+
+
 def test_moving_label_needs_a_trustworthy_speed_and_comes_within_five_frames() -> None:
     rng = np.random.default_rng(2)
     tracker = new_tracker()

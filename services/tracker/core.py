@@ -116,6 +116,8 @@ class Tracker:
         view_margin_m: float = 0.0,
         jump_speed_std: float = 0.0,
         young_jump_frames: int = 0,
+        jump_retake_m: float = 0.0,
+        jump_retake_misses: int = 0,
         left_behind: LeftBehind | None = None,
         parting: Parting = NO_PARTING,
         velocity_faces: int = 0,
@@ -135,7 +137,7 @@ class Tracker:
         self.volume = volume
         self.noise_adaptation = noise_adaptation
         self.smoothing = appearance_smoothing
-        self.jumps = Jumps(jump_nis, jump_speed_std**2, young_jump_frames)
+        self.jumps = Jumps(jump_nis, jump_speed_std**2, young_jump_frames, jump_retake_m, jump_retake_misses)
         self.left_behind = left_behind or LeftBehind(0)
         self.fragment_margin = fragment_margin
         self.twins = twins
@@ -215,6 +217,8 @@ class Tracker:
             view_margin_m=t.view_margin_m,
             jump_speed_std=t.jump_speed_std,
             young_jump_frames=t.young_jump_frames,
+            jump_retake_m=t.jump_retake_m,
+            jump_retake_misses=t.jump_retake_misses,
             left_behind=LeftBehind(t.left_behind_frames, t.left_behind_share),
             parting=Parting(
                 t.part_min_voxels,
@@ -368,7 +372,8 @@ class Tracker:
             obs.centroid, obs.rgb, obs.hsl, obs.extent, obs.density,
         )  # fmt: skip
         rows, cols = greedy_pairs(d, self.weights.gate)
-        return self.jumps.unpair_young(rows, cols, t, obs.followed, r)
+        rows, cols = self.jumps.unpair_young(rows, cols, t, obs.followed, r)
+        return self.jumps.retake(rows, cols, t, obs.centroid)
 
     @staticmethod
     def _placement_pose(clusters: Clusters, ego: EgoMotion) -> NDArray:

@@ -13,6 +13,14 @@ often the next object along a row (urban-s8's track 25 went wall -> pole -> bin 
 at the range the last had as the vehicle closed in): ``unpair_young`` leaves it unpaired, so the
 young track misses a frame and the cluster starts its own. Off by default: on KITTI tracking 0001
 the clusters so freed started phantom tracks on far structures.
+
+The other way round, a jump can be too large for association to pair at all: a track whose
+position has settled allows a few decimetres, and a cyclist's cluster 0.8 m ahead of its lagging
+track found no pair, so a new track was born on it at rest while the old one went on as a ghost
+at his 6 m/s beside it (synthetic urban-s69, cyclist 182: the new track read him 5.1 and 2.5 m/s
+slow in its first two moving frames). ``retake`` gives a track labelled moving, left unpaired, the nearest
+cluster nobody took within ``retake_m`` of where it was predicted: it re-anchors there and keeps
+its speed (docs/results/tracking.md, "Session 61").
 """
 
 from __future__ import annotations
@@ -24,7 +32,8 @@ import numpy as np
 import numpy.typing as npt
 
 from services.tracker import kalman
-from services.tracker.track import TrackTable
+from services.tracker.association import greedy_pairs
+from services.tracker.track import ACCEPTANCE, TrackTable
 
 NDArray = npt.NDArray[Any]
 
@@ -36,6 +45,8 @@ class Jumps:
     nis: float  # squared Mahalanobis distance over 3 dimensions (chi2 95 %: 7.8)
     speed_var: float = 0.0  # added to the kept horizontal velocity's variance (m^2/s^2)
     young_frames: int = 0  # tracks younger than this are not paired with a jump; 0 = off
+    retake_m: float = 0.0  # a moving track left unpaired takes a cluster nobody took this near (m); 0 = off
+    retake_misses: int = 0  # ... if unseen for at most this many frames before this one
 
     def of(self, nis: NDArray) -> NDArray:
         """Which innovations (normalised per dimension, 3 of them) re-anchor rather than correct."""
@@ -72,3 +83,27 @@ class Jumps:
         nis = kalman.normalised_innovation(tracks.x[rows], tracks.p[rows], point[cols], r[cols] * scale)
         keep = ~(young & self.of(nis))
         return rows[keep], cols[keep]
+
+    def retake(
+        self, rows: NDArray, cols: NDArray, tracks: TrackTable, centroid: NDArray
+    ) -> tuple[NDArray, NDArray]:
+        """The pairs (track rows, cluster columns) and, for each track labelled moving that they
+        leave out (tracked, or a ghost unseen ``retake_misses`` frames at most), the nearest cluster
+        they leave out whose ``centroid`` lies within ``retake_m`` of the track's predicted one (x, y)."""
+        if self.retake_m <= 0.0 or len(cols) == len(centroid) or len(rows) == len(tracks):
+            return rows, cols  # off, or nothing left over on one side
+        unpaired = np.ones(len(tracks), dtype=bool)
+        unpaired[rows] = False
+        recent = (tracks.queue != ACCEPTANCE) & (tracks.misses <= self.retake_misses)
+        lost = np.flatnonzero(unpaired & tracks.moving & recent)
+        left = np.ones(len(centroid), dtype=bool)
+        left[cols] = False
+        left = np.flatnonzero(left)
+        if len(lost) == 0:
+            return rows, cols
+        predicted = tracks.x[lost, 0:2] + tracks.offset[lost, 0:2]
+        apart = np.hypot(
+            predicted[:, None, 0] - centroid[None, left, 0], predicted[:, None, 1] - centroid[None, left, 1]
+        )
+        more_rows, more_cols = greedy_pairs(apart, self.retake_m)
+        return np.concatenate([rows, lost[more_rows]]), np.concatenate([cols, left[more_cols]])
