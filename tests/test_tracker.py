@@ -398,9 +398,10 @@ def test_a_young_track_is_not_carried_onto_a_cluster_it_would_re_anchor_on() -> 
     assert ids_after_a_step(4, young_jump_frames=4)[4:] == [[1], [1], [1]]
 
 
-def after_a_lurch(retake_m: float) -> list[list[tuple[int, str, float]]]:
+def after_a_lurch(retake_m: float) -> tuple[list[list[tuple[int, str, float]]], int]:
     """A cyclist at 6 m/s whose cluster lies 1.2 m further ahead from frame 15 on (more of him in
-    view): further from its settled track's prediction than association pairs."""
+    view): further from its settled track's prediction than association pairs. The obstacles of
+    each frame, and how many clusters were taken back."""
     tracker, rng = new_tracker(jump_retake_m=retake_m), np.random.default_rng(1)
     position, seen = np.array([8.0, -3.0, 0.8]), []
     for k in range(20):
@@ -408,11 +409,12 @@ def after_a_lurch(retake_m: float) -> list[list[tuple[int, str, float]]]:
         shown = position + np.array([1.2 if k >= 15 else 0.0, 0.0, 0.0]) + rng.normal(scale=[0.03, 0.03, 0.01])
         out = step(tracker, k, [cluster(0, shown, size=(1.8, 0.6, 1.6))])
         seen.append([(o.id, o.state, o.speed) for o in out.obstacles])
-    return seen
+    return seen, tracker.counters["retaken"]
 
 
 def test_a_moving_track_takes_its_cluster_back_when_it_lurches_ahead() -> None:
-    kept, born = after_a_lurch(1.5), after_a_lurch(0.0)
+    (kept, retaken), (born, _) = after_a_lurch(1.5), after_a_lurch(0.0)
+    assert retaken == 1  # once: from then on its prediction follows the cluster
     assert [(i, state) for i, state, _ in kept[14]] == [(1, "tracked")]
     for frame in kept[15:]:  # re-anchored on it, its speed kept
         ((i, state, speed),) = frame

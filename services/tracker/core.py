@@ -78,6 +78,7 @@ COUNTERS: tuple[str, ...] = (
     "slid",
     "parted",
     "corner_restarts",
+    "retaken",
 )
 
 
@@ -373,7 +374,10 @@ class Tracker:
         )  # fmt: skip
         rows, cols = greedy_pairs(d, self.weights.gate)
         rows, cols = self.jumps.unpair_young(rows, cols, t, obs.followed, r)
-        return self.jumps.retake(rows, cols, t, obs.centroid)
+        paired = len(rows)
+        rows, cols = self.jumps.retake(rows, cols, t, obs.centroid)
+        self.counters["retaken"] += len(rows) - paired
+        return rows, cols
 
     @staticmethod
     def _placement_pose(clusters: Clusters, ego: EgoMotion) -> NDArray:
