@@ -53,12 +53,12 @@ from services.tracker.labelling import MotionLabeller
 from services.tracker.left_behind import LeftBehind, restart_from_rest
 from services.tracker.measurement import cut_covariance, stereo_covariance, view_cut_covariance, visibility_covariance
 from services.tracker.motion_model import LearnedLabel, learned_label
-from services.tracker.motion_state import SLIDE_SMOOTHING, EgoVelocity, Hysteresis
+from services.tracker.motion_state import EgoVelocity, Hysteresis
 from services.tracker.observations import Observations, observe
 from services.tracker.parting import NO_PARTING, Parting, cut_by_view, part_covariance, part_tracked
 from services.tracker.queues import NO_COASTING, Coasting, advance, coasts
 from services.tracker.report import FaceVelocity, obstacles_of
-from services.tracker.track import ACCEPTANCE, TRACKED, TrackTable, born
+from services.tracker.track import ACCEPTANCE, TRACKED, TrackTable, born, follow_appearance
 from services.tracker.twins import NO_TWINS, Twins, wider_twins
 
 NDArray = npt.NDArray[Any]
@@ -447,21 +447,7 @@ class Tracker:
         t.offset[kept] = obs.centroid[own] - x[own, 0:3]
         t.centroid[kept], t.bbox_min[kept], t.bbox_max[kept] = obs.centroid[own], obs.bbox_min[own], obs.bbox_max[own]
         t.volume[kept] = obs.volume[own]
-        a = self.smoothing
-        t.rgb[rows] += a * (obs.rgb - t.rgb[rows])
-        hue_step = (obs.hsl[:, 0] - t.hsl[rows, 0] + 0.5) % 1.0 - 0.5  # the short way round
-        t.hsl[rows, 1:3] += a * (obs.hsl[:, 1:3] - t.hsl[rows, 1:3])
-        t.hsl[rows, 0] = (t.hsl[rows, 0] + a * hue_step) % 1.0
-        t.extent[rows] += a * (obs.extent - t.extent[rows])
-        t.extent_slow[rows] += SLIDE_SMOOTHING * (obs.extent - t.extent_slow[rows])
-        now, slow = obs.across, t.across_slow[rows]
-        t.across[rows] = now
-        t.depth[rows] = obs.depth
-        t.across_slow[rows] = np.where(
-            np.isnan(slow), now, np.where(np.isnan(now), slow, slow + SLIDE_SMOOTHING * (now - slow))
-        )
-        t.density[rows] += a * (obs.density - t.density[rows])
-        t.floor[rows] += a * (obs.floor - t.floor[rows])  # a crown's cluster dipping to a hedge for a frame stays up
+        follow_appearance(t, rows, obs, self.smoothing)
 
     def _swallowed(self, rows: NDArray, obs: Observations) -> NDArray:
         """Which tracked rows' clusters outgrow their smoothed extent by over ``merge_growth_m`` (x or y)."""

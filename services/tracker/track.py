@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from services.tracker.motion_state import SLIDE_SMOOTHING
 from services.tracker.motion_window import SIZE as WINDOW
 from services.tracker.observations import Observations
 
@@ -131,3 +132,23 @@ def born(ids: NDArray, obs: Observations, p: NDArray, clock: float, parted: NDAr
         corner_across=np.zeros(n),
         corner_across_sigma=np.full(n, np.inf),
     )
+
+
+def follow_appearance(t: TrackTable, rows: NDArray, obs: Observations, weight: float) -> None:
+    """The seen tracks ``rows`` take in their clusters ``obs``: colour, size, density and floor
+    move ``weight`` of the way (what association compares), the slow extent and width across the
+    line of sight a ``SLIDE_SMOOTHING`` of it (what the slide is read from, motion_state.py)."""
+    t.rgb[rows] += weight * (obs.rgb - t.rgb[rows])
+    hue_step = (obs.hsl[:, 0] - t.hsl[rows, 0] + 0.5) % 1.0 - 0.5  # the short way round
+    t.hsl[rows, 1:3] += weight * (obs.hsl[:, 1:3] - t.hsl[rows, 1:3])
+    t.hsl[rows, 0] = (t.hsl[rows, 0] + weight * hue_step) % 1.0
+    t.extent[rows] += weight * (obs.extent - t.extent[rows])
+    t.extent_slow[rows] += SLIDE_SMOOTHING * (obs.extent - t.extent_slow[rows])
+    now, slow = obs.across, t.across_slow[rows]
+    t.across[rows] = now
+    t.depth[rows] = obs.depth
+    t.across_slow[rows] = np.where(
+        np.isnan(slow), now, np.where(np.isnan(now), slow, slow + SLIDE_SMOOTHING * (now - slow))
+    )
+    t.density[rows] += weight * (obs.density - t.density[rows])
+    t.floor[rows] += weight * (obs.floor - t.floor[rows])  # a crown's cluster dipping to a hedge for a frame stays up
