@@ -17,10 +17,10 @@ the clusters so freed started phantom tracks on far structures.
 The other way round, a jump can be too large for association to pair at all: a track whose
 position has settled allows a few decimetres, and a cyclist's cluster 0.8 m ahead of its lagging
 track found no pair, so a new track was born on it at rest while the old one went on as a ghost
-at his 6 m/s beside it (synthetic urban-s69, cyclist 182: the new track read him 5.1 and 2.5 m/s
-slow in its first two moving frames). ``retake`` gives a track labelled moving, left unpaired, the nearest
-cluster nobody took within ``retake_m`` of where it was predicted: it re-anchors there and keeps
-its speed (docs/results/tracking.md, "Session 61").
+at his 6 m/s beside it (synthetic urban-s69, cyclist 182: the new track read him 5.1 and 2.5
+m/s slow in its first two moving frames). ``retake`` gives a track labelled moving, left unpaired,
+the nearest cluster nobody took within ``retake_m`` of where it was predicted: it re-anchors there
+and keeps its speed (docs/results/tracking.md, "Session 61").
 """
 
 from __future__ import annotations
@@ -96,11 +96,11 @@ class Jumps:
         unpaired[rows] = False
         recent = (tracks.queue != ACCEPTANCE) & (tracks.misses <= self.retake_misses)
         lost = np.flatnonzero(unpaired & tracks.moving & recent)
+        if len(lost) == 0:
+            return rows, cols
         left = np.ones(len(centroid), dtype=bool)
         left[cols] = False
         left = np.flatnonzero(left)
-        if len(lost) == 0:
-            return rows, cols
         predicted = tracks.x[lost, 0:2] + tracks.offset[lost, 0:2]
         apart = np.hypot(
             predicted[:, None, 0] - centroid[None, left, 0], predicted[:, None, 1] - centroid[None, left, 1]
