@@ -37,7 +37,6 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from common.evaluation import metrics  # noqa: E402
 from common.evaluation.evaluate import Evaluation, obstacle_figures  # noqa: E402
 from common.evaluation.inputs import RunInputs, cluster_boxes, read_inputs  # noqa: E402
 from common.messages import Clusters, EgoMotion, PointCloud  # noqa: E402
@@ -89,7 +88,7 @@ def score(run: LoadedRun, sets: list[str]) -> dict[str, Any]:
     ev = Evaluation(result={})
     figures = obstacle_figures(run.inputs, ev)
     moving, speed, segments = figures["moving"] or {}, figures["speed"] or {}, figures["segmentation"] or {}
-    counts = metrics.tally(ev.frames)  # what stationary recall and precision are pooled from
+    counts = ev.tally  # what stationary recall and precision are pooled from
     return {
         "tp": int(moving.get("tp", 0)),
         "fp": int(moving.get("fp", 0)),

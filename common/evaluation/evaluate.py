@@ -47,7 +47,7 @@ class Evaluation:
     notes: list[str] = field(default_factory=list)
     est_trajectory: list[F64] = field(default_factory=list)  # vehicle poses, world of frame 0
     true_trajectory: list[F64] = field(default_factory=list)
-    speed_errors: list[float] = field(default_factory=list)
+    tally: metrics.Tally = field(default_factory=metrics.Tally)  # the per-frame counts the figures come from
     stage_ms: dict[str, dict[int, float]] = field(default_factory=dict)
     frames: list[FrameMatch] = field(default_factory=list)  # truths and detections paired, per frame
 
@@ -149,7 +149,7 @@ def obstacle_figures(run: RunInputs, ev: Evaluation) -> dict[str, Any]:
         ev.notes.append("obstacles: no tracker/obstacles")
         return out
     tally = metrics.tally(frames)
-    ev.speed_errors = tally.speed_errors
+    ev.tally = tally
     if tally.frames:
         out["moving"] = metrics.moving_figures(tally)
         out["speed"] = metrics.speed_figures(tally)

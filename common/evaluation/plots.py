@@ -52,11 +52,12 @@ def _trajectory(ev: Evaluation, path: Path) -> Path | None:
 
 
 def _speed_histogram(ev: Evaluation, path: Path) -> Path | None:
-    if not ev.speed_errors:
+    errors = ev.tally.speed_errors
+    if not errors:
         return None
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6, 4))
-    ax.hist(ev.speed_errors, bins=min(40, max(5, len(ev.speed_errors) // 5)), color="steelblue")
+    ax.hist(errors, bins=min(40, max(5, len(errors) // 5)), color="steelblue")
     ax.set_xlabel("speed error |v_est - v_true| (m/s)")
     ax.set_ylabel("true-positive pairs")
     ax.set_title("speed error of moving obstacles")
