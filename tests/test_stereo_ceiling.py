@@ -1,0 +1,58 @@
+"""scripts/stereo_ceiling.py: the stereo stage's disparity handed to the truth, in whole or near depth steps."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "scripts"))
+
+from stereo_ceiling import Variant, handed, near_steps, run_one  # noqa: E402
+
+
+def step_scene() -> tuple[np.ndarray, np.ndarray]:
+    """A true map with one depth step at column 20 (10 px left, 5 px right), and a matcher 0.7 px off everywhere."""
+    truth = np.full((8, 40), 5.0, dtype=np.float32)
+    truth[:, :20] = 10.0
+    return truth, truth + np.float32(0.7)
+
+
+def test_only_pixels_near_a_true_step_are_handed_to_the_truth_or_dropped() -> None:
+    truth, matcher = step_scene()
+    near = near_steps(truth, 3)
+    assert near[:, 17:23].all() and not near[:, :17].any() and not near[:, 23:].any()
+    mended = handed(Variant("t", steps="truth", reach_px=3), matcher, truth, 0)
+    assert np.array_equal(mended[:, 17:23], truth[:, 17:23])
+    assert np.array_equal(mended[:, :17], matcher[:, :17]) and np.array_equal(mended[:, 23:], matcher[:, 23:])
+    dropped = handed(Variant("d", steps="drop", reach_px=3), matcher, truth, 0)
+    assert np.isnan(dropped[:, 17:23]).all() and np.array_equal(dropped[:, 23:], matcher[:, 23:])
+    assert np.array_equal(handed(Variant("m"), matcher, truth, 0), matcher)
+
+
+def test_the_truths_noise_is_unbiased_of_its_sigma_and_the_same_for_a_frame() -> None:
+    truth = np.full((200, 200), 8.0, dtype=np.float32)
+    noisy = handed(Variant("n", source="truth", noise_px=0.25), None, truth, 7)
+    assert float(np.mean(noisy - truth)) == pytest.approx(0.0, abs=0.01)
+    assert float(np.std(noisy - truth)) == pytest.approx(0.25, rel=0.03)
+    assert np.array_equal(noisy, handed(Variant("n", source="truth", noise_px=0.25), None, truth, 7))
+    assert not np.array_equal(noisy, handed(Variant("n", source="truth", noise_px=0.25), None, truth, 8))
+
+
+def test_a_run_given_the_true_disparity_scores_no_stereo_error(urban_recording: Path, tmp_path: Path) -> None:
+    """Through ``process`` and ``evaluate``: the patch reaches the stereo stage, and only while it runs."""
+    truth = run_one(Variant("truth", source="truth"), urban_recording, tmp_path / "truth", max_frames=3)
+    matcher = run_one(Variant("matcher"), urban_recording, tmp_path / "matcher", max_frames=3)
+    assert truth["frames"] == matcher["frames"] == 3
+    assert truth["stereo"]["d1_all_pct"] == 0.0
+    assert matcher["stereo"]["d1_all_pct"] > 0.0
+    assert (tmp_path / "truth" / "urban_run.mcap").exists()
+
+
+def test_a_recording_without_truth_for_a_frame_is_named(tmp_path: Path) -> None:
+    """The bundled recording holds the true disparity of every 4th frame only."""
+    with pytest.raises(ValueError, match="frame 1 has no true disparity"):
+        run_one(Variant("truth", source="truth"), REPO / "recordings" / "urban.mcap", tmp_path, max_frames=2)
