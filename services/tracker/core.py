@@ -280,7 +280,7 @@ class Tracker:
         self.tracks.parted[rows] = parted[cols]
         if trusted:
             self._correct(rows, obs.take(cols), r[cols])
-        piece_of = {int(i): pieces[int(obs.index[j])] for i, j in zip(rows, cols, strict=True)}
+        piece_of = dict(zip(rows.tolist(), [pieces[k] for k in obs.index[cols].tolist()], strict=True))
         track_corners(
             self.tracks, self.corners, self.corner_rule, rows, cols, stacked, clusters.voxel_edge, pose[0:2, 3]
         )
