@@ -60,7 +60,8 @@ class Variant:
     name: str
     source: str = "matcher"  # matcher | truth
     noise_px: float = 0.0  # Gaussian noise added to the truth
-    steps: str = ""  # with the matcher: "truth" or "drop" within ``reach_px`` of a true depth step
+    steps: str = ""  # with the matcher, within ``reach_px`` of a true depth step: "truth", "drop", or the truth
+    # only where the matcher lies "between" the surfaces there or on the wrong one ("flipped")
     reach_px: int = 3
     sets: tuple[str, ...] = field(default=())
 
@@ -74,6 +75,8 @@ VARIANTS: tuple[Variant, ...] = (
     Variant("truth near steps", steps="truth", reach_px=3),
     Variant("truth near steps, wide", steps="truth", reach_px=8),
     Variant("dropped near steps", steps="drop", reach_px=3),
+    Variant("truth where between, near steps", steps="between", reach_px=3),
+    Variant("truth where flipped, near steps", steps="flipped", reach_px=3),
 )
 
 
@@ -95,8 +98,23 @@ def handed(variant: Variant, matcher: F32 | None, truth: F32, frame_id: int) -> 
     out = matcher.astype(np.float32, copy=True)
     if variant.steps:
         near = near_steps(truth, variant.reach_px)
+        if variant.steps in ("between", "flipped"):
+            near &= wrong_near_steps(matcher, truth, variant.reach_px, between=variant.steps == "between")
         out[near] = np.nan if variant.steps == "drop" else truth[near]
     return out
+
+
+def wrong_near_steps(matcher: F32, truth: F32, reach_px: int, between: bool) -> npt.NDArray[np.bool_]:
+    """Pixels the matcher puts over ``STEP_PX`` / 2 off the truth: strictly between the nearest and the
+    farthest true surface within the reach (``between``), or else (on the other surface, or beyond both)."""
+    known = np.nan_to_num(truth, nan=0.0)
+    size = 2 * reach_px + 1
+    lo, hi = ndimage.minimum_filter(known, size), ndimage.maximum_filter(known, size)
+    tol = 0.5 * STEP_PX
+    with np.errstate(invalid="ignore"):
+        wrong = np.abs(matcher - truth) > tol
+        inside = (matcher > lo + tol) & (matcher < hi - tol)
+    return wrong & (inside if between else ~inside)
 
 
 def install(variant: Variant, truth: dict[int, F32]) -> Callable[[], None]:
@@ -190,6 +208,11 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     plt.close(fig)
 
 
+def slug(variant: Variant) -> str:
+    """The variant's folder name: ``truth + noise, low limits`` -> ``truth_plus_noise_low_limits``."""
+    return variant.name.replace(", ", "_").replace(" + ", "_plus_").replace(" ", "_")
+
+
 def _job(args: tuple[Variant, Path, Path, int | None]) -> tuple[str, dict[str, Any]]:
     variant, src, out, max_frames = args
     return variant.name, run_one(variant, src, out, max_frames)
@@ -199,13 +222,16 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("inputs", nargs="+", type=Path, help="scenario recordings with groundtruth/disparity")
     parser.add_argument("--out", type=Path, required=True)
-    parser.add_argument("--only", default="", help="comma-separated variant names (default: all)")
+    parser.add_argument("--only", default="", help="comma-separated variants, as named in folders (default: all)")
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--max-frames", type=int)
     args = parser.parse_args(argv)
-    chosen = [v for v in VARIANTS if not args.only or v.name in args.only.split(",")]
-    slug = {v.name: v.name.replace(", ", "_").replace(" + ", "_plus_").replace(" ", "_") for v in chosen}
-    jobs = [(v, src, args.out / slug[v.name], args.max_frames) for v in chosen for src in args.inputs]
+    wanted = set(args.only.split(",")) if args.only else {slug(v) for v in VARIANTS}
+    chosen = [v for v in VARIANTS if slug(v) in wanted]
+    if unknown := wanted - {slug(v) for v in VARIANTS}:
+        parser.error(f"no variant {sorted(unknown)}; there are {[slug(v) for v in VARIANTS]}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    jobs = [(v, src, args.out / slug(v), args.max_frames) for v in chosen for src in args.inputs]
     results: dict[str, list[dict[str, Any]]] = {v.name: [] for v in chosen}
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
         for done, (name, result) in enumerate(pool.map(_job, jobs), start=1):

@@ -11,7 +11,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "scripts"))
 
-from stereo_ceiling import Variant, handed, near_steps, run_one  # noqa: E402
+from stereo_ceiling import Variant, handed, near_steps, run_one, slug  # noqa: E402
 
 
 def step_scene() -> tuple[np.ndarray, np.ndarray]:
@@ -31,6 +31,20 @@ def test_only_pixels_near_a_true_step_are_handed_to_the_truth_or_dropped() -> No
     dropped = handed(Variant("d", steps="drop", reach_px=3), matcher, truth, 0)
     assert np.isnan(dropped[:, 17:23]).all() and np.array_equal(dropped[:, 23:], matcher[:, 23:])
     assert np.array_equal(handed(Variant("m"), matcher, truth, 0), matcher)
+
+
+def test_near_a_step_the_matchers_pixels_between_the_surfaces_and_on_the_wrong_one_are_told_apart() -> None:
+    truth, _ = step_scene()
+    matcher = truth.copy()
+    matcher[:, 19] = 7.5  # the 10 px surface read halfway down the step
+    matcher[:, 21] = 10.0  # the 5 px surface read as the nearer one: the foreground fattened
+    matcher[:, 2] = 7.5  # far from any step: neither variant touches it
+    between = handed(Variant("b", steps="between", reach_px=3), matcher, truth, 0)
+    flipped = handed(Variant("f", steps="flipped", reach_px=3), matcher, truth, 0)
+    assert np.array_equal(between[:, 19], truth[:, 19]) and np.array_equal(between[:, 21], matcher[:, 21])
+    assert np.array_equal(flipped[:, 21], truth[:, 21]) and np.array_equal(flipped[:, 19], matcher[:, 19])
+    assert (between[:, 2] == 7.5).all() and (flipped[:, 2] == 7.5).all()
+    assert slug(Variant("truth + noise, low limits")) == "truth_plus_noise_low_limits"
 
 
 def test_the_truths_noise_is_unbiased_of_its_sigma_and_the_same_for_a_frame() -> None:
