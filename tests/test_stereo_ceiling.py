@@ -24,12 +24,14 @@ def step_scene() -> tuple[np.ndarray, np.ndarray]:
 def test_only_pixels_near_a_true_step_are_handed_to_the_truth_or_dropped() -> None:
     truth, matcher = step_scene()
     near = near_steps(truth, 3)
-    assert near[:, 17:23].all() and not near[:, :17].any() and not near[:, 23:].any()
+    assert near[:, 16:24].all() and not near[:, :16].any() and not near[:, 24:].any()  # 3 px from columns 19 | 20
     mended = handed(Variant("t", steps="truth", reach_px=3), matcher, truth, 0)
-    assert np.array_equal(mended[:, 17:23], truth[:, 17:23])
-    assert np.array_equal(mended[:, :17], matcher[:, :17]) and np.array_equal(mended[:, 23:], matcher[:, 23:])
+    assert np.array_equal(mended[:, 16:24], truth[:, 16:24])
+    assert np.array_equal(mended[:, :16], matcher[:, :16]) and np.array_equal(mended[:, 24:], matcher[:, 24:])
     dropped = handed(Variant("d", steps="drop", reach_px=3), matcher, truth, 0)
-    assert np.isnan(dropped[:, 17:23]).all() and np.array_equal(dropped[:, 23:], matcher[:, 23:])
+    assert np.isnan(dropped[:, 16:24]).all() and np.array_equal(dropped[:, 24:], matcher[:, 24:])
+    road = np.repeat(np.arange(40, dtype=np.float32)[:, None] * 0.27, 30, axis=1)  # 0.27 px a row: a slope
+    assert not near_steps(road, 3).any()
     assert np.array_equal(handed(Variant("m"), matcher, truth, 0), matcher)
 
 
