@@ -47,7 +47,7 @@ from services.pipeline import process_file  # noqa: E402
 from services.stereo_depth import core as stereo_core  # noqa: E402
 
 F32 = npt.NDArray[np.float32]
-#: a true depth step: neighbours within the reach differ by more than this (px of disparity).
+#: a true depth step: two neighbours, along a row or a column, differ by more than this (px of disparity).
 STEP_PX: float = 1.0
 #: the noise of ``truth + noise`` (px, one sigma).
 NOISE_PX: float = 0.25
@@ -62,8 +62,9 @@ class Variant:
     name: str
     source: str = "matcher"  # matcher | truth
     noise_px: float = 0.0  # Gaussian noise added to the truth
-    steps: str = ""  # with the matcher, within ``reach_px`` of a true depth step: "truth", "drop", or the truth
-    # only where the matcher lies "between" the surfaces there or on the wrong one ("flipped")
+    # with the matcher, within ``reach_px`` of a true depth step: the truth ("truth"), nothing ("drop"), or
+    # the truth only where the matcher lies between the surfaces ("between") or on the wrong one ("flipped")
+    steps: str = ""
     reach_px: int = 3
     sets: tuple[str, ...] = field(default=())
 
