@@ -152,7 +152,7 @@ def read_truth(src: Path) -> dict[int, F32]:
     truth = {m.frame_id: np.asarray(m.disparity, dtype=np.float32) for _, m in open_recording(src).messages(
         topics=["groundtruth/disparity"])}  # fmt: skip
     if not truth:
-        raise SystemExit(f"{src}: no groundtruth/disparity (a synthetic scenario recording is needed)")
+        raise ValueError(f"{src}: no groundtruth/disparity (a synthetic scenario recording is needed)")
     return truth
 
 
