@@ -17,9 +17,16 @@ stage's disparity map replaced as the variant says, and is scored by ``evaluate`
   of a true depth step, where it is the truth: what mending the matcher at steps alone would buy;
 - ``dropped near steps``: the matcher's, with those pixels left out instead;
 - ``truth where between`` / ``where flipped``: the truth near steps only where the matcher puts a
-  pixel between the nearest and farthest true surface there, or on the wrong one (or beyond both).
+  pixel between the nearest and farthest true surface there, or on the wrong one (or beyond both);
+- ``wrong dropped near steps``: near steps, the matcher's pixels over ``STEP_PX`` / 2 off the truth
+  left out: a perfect detector of its errors there, without a cure;
+- ``snapped near steps``: those pixels moved onto the nearer to the truth of the highest and lowest
+  matcher disparity 4 columns to either side: a perfect choice between its own two plateaus, which
+  is what a ramp filter (services/stereo_depth/ramps.py) can at best do;
+- ``truth in holes``: the truth wherever the matcher gives no disparity;
+- ``..., low limits``: as the variant, with the mapper's noise limits lowered (``LOW_LIMITS``).
 
-Session 62's table and figure (docs/results/voxel.md) came from here. The figure, ``ceiling.png``
+Sessions 62 and 63's tables and figure (docs/results/voxel.md) came from here. The figure, ``ceiling.png``
 in ``--out``, shows each variant's mean one-cluster, missed and merged shares.
 """
 
@@ -62,10 +69,12 @@ class Variant:
     name: str
     source: str = "matcher"  # matcher | truth
     noise_px: float = 0.0  # Gaussian noise added to the truth
-    # with the matcher, within ``reach_px`` of a true depth step: the truth ("truth"), nothing ("drop"), or
-    # the truth only where the matcher lies between the surfaces ("between") or on the wrong one ("flipped")
+    # with the matcher, within ``reach_px`` of a true depth step: the truth ("truth"), nothing ("drop"), the
+    # truth only where the matcher lies between the surfaces ("between") or on the wrong one ("flipped"), or
+    # where it is wrong: nothing ("drop wrong") or the nearer of its own plateaus ("snap")
     steps: str = ""
     reach_px: int = 3
+    holes: bool = False  # with the matcher: the truth where it gives no disparity
     sets: tuple[str, ...] = field(default=())
 
 
@@ -80,6 +89,14 @@ VARIANTS: tuple[Variant, ...] = (
     Variant("dropped near steps", steps="drop", reach_px=3),
     Variant("truth where between, near steps", steps="between", reach_px=3),
     Variant("truth where flipped, near steps", steps="flipped", reach_px=3),
+    Variant("matcher, low limits", sets=LOW_LIMITS),
+    Variant("truth near steps, low limits", steps="truth", reach_px=3, sets=LOW_LIMITS),
+    Variant("wrong dropped near steps", steps="drop wrong", reach_px=3),
+    Variant("wrong dropped near steps, low limits", steps="drop wrong", reach_px=3, sets=LOW_LIMITS),
+    Variant("snapped near steps", steps="snap", reach_px=3),
+    Variant("snapped near steps, low limits", steps="snap", reach_px=3, sets=LOW_LIMITS),
+    Variant("truth in holes", holes=True),
+    Variant("truth in holes and near steps", steps="truth", reach_px=3, holes=True),
 )
 
 
@@ -111,8 +128,30 @@ def handed(variant: Variant, matcher: F32 | None, truth: F32, frame_id: int) -> 
         near = near_steps(truth, variant.reach_px)
         if variant.steps in ("between", "flipped"):
             near &= wrong_near_steps(matcher, truth, variant.reach_px, between=variant.steps == "between")
-        out[near] = np.nan if variant.steps == "drop" else truth[near]
+        if variant.steps in ("drop wrong", "snap"):
+            with np.errstate(invalid="ignore"):
+                near &= ~(np.abs(matcher - truth) <= 0.5 * STEP_PX)
+        if variant.steps == "snap":
+            return snapped(out, truth, near)
+        out[near] = np.nan if variant.steps.startswith("drop") else truth[near]
+    if variant.holes:
+        hole = ~np.isfinite(out)
+        out[hole] = truth[hole]
     return out
+
+
+def snapped(out: F32, truth: F32, wrong: npt.NDArray[np.bool_], reach_px: int = 4) -> F32:
+    """``out`` with each ``wrong`` pixel moved onto the nearer to the truth of the highest and lowest
+    matcher disparity within ``reach_px`` along its row: a perfect choice between the plateaus."""
+    size = (1, 2 * reach_px + 1)
+    lo = ndimage.minimum_filter(np.where(np.isfinite(out), out, np.inf), size)
+    hi = ndimage.maximum_filter(np.where(np.isfinite(out), out, -np.inf), size)
+    with np.errstate(invalid="ignore"):
+        pick = np.where(np.abs(lo - truth) < np.abs(hi - truth), lo, hi)
+    res = out.copy()
+    ok = wrong & np.isfinite(pick) & np.isfinite(truth)
+    res[ok] = pick[ok]
+    return res
 
 
 def wrong_near_steps(matcher: F32, truth: F32, reach_px: int, between: bool) -> npt.NDArray[np.bool_]:

@@ -72,3 +72,23 @@ def test_a_recording_without_truth_for_a_frame_is_named(tmp_path: Path) -> None:
     """The bundled recording holds the true disparity of every 4th frame only."""
     with pytest.raises(ValueError, match="frame 1 has no true disparity"):
         run_one(Variant("truth", source="truth"), REPO / "recordings" / "urban.mcap", tmp_path, max_frames=2)
+
+
+def test_holes_wrong_pixels_and_a_perfect_choice_of_plateau_near_a_step() -> None:
+    """The oracles of session 63: the truth in the matcher's holes, its wrong pixels near a step left out,
+    or moved onto whichever of its own two plateaus lies nearer the truth."""
+    truth, _ = step_scene()
+    matcher = truth.copy()
+    matcher[:, 19] = 7.5  # between the surfaces
+    matcher[:, 21] = 9.8  # the far surface read near the foreground's
+    matcher[:, 5] = np.nan  # a hole far from the step
+    matcher[:, 30] = 6.0  # 1 px off, but far from the step: no near-step variant touches it
+    holes = handed(Variant("h", holes=True), matcher, truth, 0)
+    assert (holes[:, 5] == 10.0).all() and (holes[:, 19] == 7.5).all()
+    dropped = handed(Variant("w", steps="drop wrong", reach_px=3), matcher, truth, 0)
+    assert np.isnan(dropped[:, [19, 21]]).all() and np.isnan(dropped[:, 5]).all()  # the hole stays one
+    assert np.array_equal(dropped[:, 16:19], truth[:, 16:19]) and (dropped[:, 30] == 6.0).all()
+    snap = handed(Variant("s", steps="snap", reach_px=3), matcher, truth, 0)
+    assert (snap[:, 19] == 10.0).all()  # the near plateau (10 px) is the truth there
+    assert (snap[:, 21] == 5.0).all()  # the far one (5 px)
+    assert (snap[:, 30] == 6.0).all() and np.array_equal(snap[:, 22:26], truth[:, 22:26])
