@@ -95,6 +95,8 @@ VARIANTS: tuple[Variant, ...] = (
     Variant("wrong dropped near steps, low limits", steps="drop wrong", reach_px=3, sets=LOW_LIMITS),
     Variant("snapped near steps", steps="snap", reach_px=3),
     Variant("snapped near steps, low limits", steps="snap", reach_px=3, sets=LOW_LIMITS),
+    Variant("snapped near steps, square", steps="snap square", reach_px=3),
+    Variant("snapped near steps, square, low limits", steps="snap square", reach_px=3, sets=LOW_LIMITS),
     Variant("truth in holes", holes=True),
     Variant("truth in holes and near steps", steps="truth", reach_px=3, holes=True),
 )
@@ -131,8 +133,8 @@ def handed(variant: Variant, matcher: F32 | None, truth: F32, frame_id: int) -> 
         if variant.steps in ("drop wrong", "snap"):
             with np.errstate(invalid="ignore"):
                 near &= ~(np.abs(matcher - truth) <= 0.5 * STEP_PX)
-        if variant.steps == "snap":
-            return snapped(out, truth, near)
+        if variant.steps in ("snap", "snap square"):
+            return snapped(out, truth, near, square=variant.steps == "snap square")
         out[near] = np.nan if variant.steps.startswith("drop") else truth[near]
     if variant.holes:
         hole = ~np.isfinite(out)
@@ -140,16 +142,18 @@ def handed(variant: Variant, matcher: F32 | None, truth: F32, frame_id: int) -> 
     return out
 
 
-def snapped(out: F32, truth: F32, wrong: npt.NDArray[np.bool_], reach_px: int = 4) -> F32:
+def snapped(out: F32, truth: F32, wrong: npt.NDArray[np.bool_], reach_px: int = 4, square: bool = False) -> F32:
     """``out`` with each ``wrong`` pixel moved onto the nearer to the truth of the highest and lowest
-    matcher disparity within ``reach_px`` along its row: a perfect choice between the plateaus."""
-    size = (1, 2 * reach_px + 1)
+    matcher disparity within ``reach_px`` along its row (or in the square of that reach, ``square``):
+    a perfect choice between the plateaus, made only where one of them is within ``STEP_PX`` / 2 of the truth."""
+    size = (2 * reach_px + 1 if square else 1, 2 * reach_px + 1)
     lo = ndimage.minimum_filter(np.where(np.isfinite(out), out, np.inf), size)
     hi = ndimage.maximum_filter(np.where(np.isfinite(out), out, -np.inf), size)
     with np.errstate(invalid="ignore"):
         pick = np.where(np.abs(lo - truth) < np.abs(hi - truth), lo, hi)
     res = out.copy()
-    ok = wrong & np.isfinite(pick) & np.isfinite(truth)
+    with np.errstate(invalid="ignore"):
+        ok = wrong & (np.abs(pick - truth) <= 0.5 * STEP_PX)  # where neither plateau is right, the pixel stays
     res[ok] = pick[ok]
     return res
 
@@ -251,8 +255,8 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     ax.set_yticks(y, names)
     ax.invert_yaxis()
     ax.set_xlabel("% of counted object-frames (merged: % of clusters)")
-    ax.set_title("urban segmentation with the stereo stage's disparity handed to the truth")
-    ax.legend(loc="lower right")
+    ax.set_title("urban segmentation, the stereo stage's\ndisparity handed in part to the truth")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.6 / (0.5 * len(rows) + 1.5)), ncol=3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -268,18 +272,40 @@ def _job(args: tuple[Variant, Path, Path, int | None]) -> tuple[str, dict[str, A
     return variant.name, run_one(variant, src, out, max_frames)
 
 
+def summarise(out: Path) -> int:
+    """The table and figure of every variant whose folder in ``out`` holds runs' JSON, in ``VARIANTS``' order:
+    variants run at different times (or their folders linked into one) shown together."""
+    results = {v.name: [json.loads(p.read_text()) for p in sorted((out / slug(v)).glob("*.json"))] for v in VARIANTS}
+    results = {name: runs for name, runs in results.items() if runs}
+    if not results:
+        print(f"{out}: no variant's JSON", file=sys.stderr)
+        return 1
+    rows = summary(results)
+    (out / "summary.md").write_text(markdown(rows))
+    (out / "summary.json").write_text(json.dumps(rows, indent=1))
+    plot(rows, out / "ceiling.png")
+    print(markdown(rows))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("inputs", nargs="+", type=Path, help="scenario recordings with groundtruth/disparity")
+    parser.add_argument("inputs", nargs="*", type=Path, help="scenario recordings with groundtruth/disparity")
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--only", default="", help="comma-separated variants, as named in folders (default: all)")
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--max-frames", type=int)
+    parser.add_argument("--summarise", action="store_true",
+                        help="run nothing: the table and figure of the variants' JSON already in --out")  # fmt: skip
     args = parser.parse_args(argv)
+    if args.summarise:
+        return summarise(args.out)
     wanted = set(args.only.split(",")) if args.only else {slug(v) for v in VARIANTS}
     chosen = [v for v in VARIANTS if slug(v) in wanted]
     if unknown := wanted - {slug(v) for v in VARIANTS}:
         parser.error(f"no variant {sorted(unknown)}; there are {[slug(v) for v in VARIANTS]}")
+    if not args.inputs:
+        parser.error("no inputs (only --summarise runs without)")
     args.out.mkdir(parents=True, exist_ok=True)
     jobs = [(v, src, args.out / slug(v), args.max_frames) for v in chosen for src in args.inputs]
     results: dict[str, list[dict[str, Any]]] = {v.name: [] for v in chosen}

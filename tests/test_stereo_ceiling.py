@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -11,7 +12,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "scripts"))
 
-from stereo_ceiling import Variant, handed, near_steps, run_one, slug  # noqa: E402
+from stereo_ceiling import Variant, handed, main, near_steps, run_one, slug  # noqa: E402
 
 
 def step_scene() -> tuple[np.ndarray, np.ndarray]:
@@ -88,7 +89,27 @@ def test_holes_wrong_pixels_and_a_perfect_choice_of_plateau_near_a_step() -> Non
     dropped = handed(Variant("w", steps="drop wrong", reach_px=3), matcher, truth, 0)
     assert np.isnan(dropped[:, [19, 21]]).all() and np.isnan(dropped[:, 5]).all()  # the hole stays one
     assert np.array_equal(dropped[:, 16:19], truth[:, 16:19]) and (dropped[:, 30] == 6.0).all()
+    matcher[3, 20:30] = 6.0  # a row whose far plateau is itself 1 px off: no plateau is right, the pixels stay
     snap = handed(Variant("s", steps="snap", reach_px=3), matcher, truth, 0)
     assert (snap[:, 19] == 10.0).all()  # the near plateau (10 px) is the truth there
-    assert (snap[:, 21] == 5.0).all()  # the far one (5 px)
-    assert (snap[:, 30] == 6.0).all() and np.array_equal(snap[:, 22:26], truth[:, 22:26])
+    assert (snap[[0, 1, 2, 4, 5, 6, 7], 21] == 5.0).all()  # the far one (5 px)
+    assert (snap[3, 20:24] == 6.0).all()
+    assert (snap[:, 30] == 6.0).all() and np.array_equal(snap[4:, 22:26], truth[4:, 22:26])
+
+
+def test_summarise_joins_variants_run_apart_in_the_variants_order(tmp_path: Path) -> None:
+    """``--summarise``: the table of folders filled by different runs, without running anything."""
+    assert main(["--out", str(tmp_path), "--summarise"]) == 1  # nothing there yet
+    for name, shares in (("truth_in_holes", (80.0, 90.0)), ("matcher", (70.0, 74.0))):
+        (tmp_path / name).mkdir()
+        for k, one in enumerate(shares):
+            seg = {"one_cluster_pct": one, "split_pct": 1.0, "missed_pct": 100.0 - one - 1.0, "merged_pct": 5.0}
+            moving = {"tp": 10, "fp": k, "fn": 2}
+            (tmp_path / name / f"urban-s{k}.json").write_text(json.dumps({"segmentation": seg, "moving": moving}))
+    assert main(["--out", str(tmp_path), "--summarise"]) == 0
+    rows = (tmp_path / "summary.md").read_text().splitlines()[2:]
+    assert rows == [
+        "| matcher | 72.0 | 1.0 | 27.0 | 5.0 | 20 / 1 / 4 |",
+        "| truth in holes | 85.0 | 1.0 | 14.0 | 5.0 | 20 / 1 / 4 |",
+    ]
+    assert (tmp_path / "ceiling.png").stat().st_size > 0
