@@ -20,9 +20,10 @@ stage's disparity map replaced as the variant says, and is scored by ``evaluate`
   pixel between the nearest and farthest true surface there, or on the wrong one (or beyond both);
 - ``wrong dropped near steps``: near steps, the matcher's pixels over ``STEP_PX`` / 2 off the truth
   left out: a perfect detector of its errors there, without a cure;
-- ``snapped near steps``: those pixels moved onto the nearer to the truth of the highest and lowest
-  matcher disparity 4 columns to either side: a perfect choice between its own two plateaus, which
-  is what a ramp filter (services/stereo_depth/ramps.py) can at best do;
+- ``snapped near steps`` / ``..., square``: those pixels moved onto the nearer to the truth of the
+  highest and lowest matcher disparity 4 columns to either side (or in the 9 x 9 square), where that
+  one is right: a perfect choice between its own two plateaus, which is what a ramp filter
+  (services/stereo_depth/ramps.py) can at best do;
 - ``truth in holes``: the truth wherever the matcher gives no disparity;
 - ``..., low limits``: as the variant, with the mapper's noise limits lowered (``LOW_LIMITS``).
 
@@ -71,7 +72,7 @@ class Variant:
     noise_px: float = 0.0  # Gaussian noise added to the truth
     # with the matcher, within ``reach_px`` of a true depth step: the truth ("truth"), nothing ("drop"), the
     # truth only where the matcher lies between the surfaces ("between") or on the wrong one ("flipped"), or
-    # where it is wrong: nothing ("drop wrong") or the nearer of its own plateaus ("snap")
+    # where it is wrong: nothing ("drop wrong") or the nearer of its own plateaus ("snap", "snap square")
     steps: str = ""
     reach_px: int = 3
     holes: bool = False  # with the matcher: the truth where it gives no disparity
@@ -130,12 +131,13 @@ def handed(variant: Variant, matcher: F32 | None, truth: F32, frame_id: int) -> 
         near = near_steps(truth, variant.reach_px)
         if variant.steps in ("between", "flipped"):
             near &= wrong_near_steps(matcher, truth, variant.reach_px, between=variant.steps == "between")
-        if variant.steps in ("drop wrong", "snap"):
+        if variant.steps in ("drop wrong", "snap", "snap square"):
             with np.errstate(invalid="ignore"):
                 near &= ~(np.abs(matcher - truth) <= 0.5 * STEP_PX)
-        if variant.steps in ("snap", "snap square"):
-            return snapped(out, truth, near, square=variant.steps == "snap square")
-        out[near] = np.nan if variant.steps.startswith("drop") else truth[near]
+        if variant.steps.startswith("snap"):
+            out = snapped(out, truth, near, square=variant.steps == "snap square")
+        else:
+            out[near] = np.nan if variant.steps.startswith("drop") else truth[near]
     if variant.holes:
         hole = ~np.isfinite(out)
         out[hole] = truth[hole]

@@ -95,6 +95,10 @@ def test_holes_wrong_pixels_and_a_perfect_choice_of_plateau_near_a_step() -> Non
     assert (snap[[0, 1, 2, 4, 5, 6, 7], 21] == 5.0).all()  # the far one (5 px)
     assert (snap[3, 20:24] == 6.0).all()
     assert (snap[:, 30] == 6.0).all() and np.array_equal(snap[4:, 22:26], truth[4:, 22:26])
+    right = matcher.copy()
+    right[:, 18] = 9.7  # right enough (0.3 px off): in the square as along the row, it stays as the matcher has it
+    square = handed(Variant("q", steps="snap square", reach_px=3), right, truth, 0)
+    assert (square[:, 18] == 9.7).all() and (square[[0, 1, 2, 4, 5, 6, 7], 21] == 5.0).all()
 
 
 def test_summarise_joins_variants_run_apart_in_the_variants_order(tmp_path: Path) -> None:
