@@ -11,7 +11,9 @@ takes them) and writes, the core call, and what it publishes for a frame the cor
 3. call the core, stamp each output's timing trail (union of the inputs' trails + this stage);
 4. publish exactly one set of outputs per frame — when the core raises, the stage's *empty*
    outputs for that frame id, so a lockstep replay waiting on frame k never waits forever;
-5. declare a liveliness token and publish Health once a second until ``stop`` is set.
+5. declare a liveliness token and publish Health once a second until ``stop`` is set; before it,
+   ``warm`` puts a few made-up frames through a throwaway core (services/warmup.py), so that a
+   stage is alive only once its compiled code is loaded.
 
 Every wait has a timeout so SIGINT/SIGTERM (which only set ``stop``) end the loop promptly.
 """
@@ -48,6 +50,10 @@ def _no_detail() -> dict[str, Any]:
     return {}
 
 
+def _cold() -> None:
+    return None
+
+
 @dataclass(frozen=True)
 class Stage:
     """What makes one service; ``process`` and ``empty`` take the inputs in ``inputs`` order."""
@@ -60,6 +66,7 @@ class Stage:
     degenerate: Callable[[], bool] = field(default=_never_degenerate)  # did the last frame degrade?
     counters: Callable[[], dict[str, Any]] = field(default=_no_detail)  # the core's own counts, for Health
     optional: tuple[str, ...] = ()  # inputs taken when there, never waited for (services/join.py); None if not
+    warm: Callable[[], object] = field(default=_cold)  # run once before the stage is alive (services/warmup.py)
 
 
 class _Throttle:
@@ -180,6 +187,7 @@ def run_stage(
 ) -> StageHealth:
     """Run ``stage`` on ``session`` until ``stop`` is set (or ``max_frames`` are out); returns its counters."""
     vehicle = cfg.bus.vehicle
+    stage.warm()
     loop = StageLoop(stage, cfg, session, policy, depth)
     health_pub = Publisher(session, key_for(f"health/{stage.name}", vehicle))
     token = declare_alive(session, stage.name, vehicle)

@@ -19,6 +19,7 @@ import numpy as np
 
 from common.config import Config
 from common.messages import EgoMotion, Message, StereoFrame, VehicleMotion
+from services import warmup
 from services.odometry import StereoOdometry
 from services.shell import Stage
 
@@ -68,5 +69,6 @@ def stage(cfg: Config, initial_epoch: int | None = None) -> Stage:
         process=process,
         empty=empty,
         degenerate=lambda: not last.valid,
+        warm=lambda: warmup.warm(NAME, StereoOdometry.from_config(cfg).process, [(f,) for f in warmup.stereo_frames()]),
     )
 

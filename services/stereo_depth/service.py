@@ -11,6 +11,7 @@ import numpy as np
 
 from common.config import Config
 from common.messages import Disparity, Message, PointCloud, StereoFrame
+from services import warmup
 from services.shell import Stage
 from services.stereo_depth import StereoDepth
 
@@ -47,4 +48,5 @@ def stage(cfg: Config) -> Stage:
         process=process,
         empty=empty,
         degenerate=lambda: core.last_degenerate,
+        warm=lambda: warmup.warm(NAME, StereoDepth.from_config(cfg).process, [(f,) for f in warmup.stereo_frames()]),
     )

@@ -11,6 +11,7 @@ import numpy as np
 
 from common.config import Config
 from common.messages import Clusters, EgoMotion, PointCloud
+from services import warmup
 from services.shell import Stage
 from services.voxel_mapper import VoxelMapper
 
@@ -41,5 +42,6 @@ def stage(cfg: Config) -> Stage:
         process=process,
         empty=empty,
         counters=lambda: dict(getattr(core, "counters", {})),
+        warm=lambda: warmup.warm(NAME, VoxelMapper.from_config(cfg).process, warmup.clouds_and_motions()),
     )
 
