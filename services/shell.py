@@ -187,8 +187,8 @@ def run_stage(
 ) -> StageHealth:
     """Run ``stage`` on ``session`` until ``stop`` is set (or ``max_frames`` are out); returns its counters."""
     vehicle = cfg.bus.vehicle
-    stage.warm()
     loop = StageLoop(stage, cfg, session, policy, depth)
+    stage.warm()  # subscribed already: what arrives meanwhile waits in the queues (a restart mid-run)
     health_pub = Publisher(session, key_for(f"health/{stage.name}", vehicle))
     token = declare_alive(session, stage.name, vehicle)
     try:
