@@ -3,9 +3,9 @@
 The numba kernels are compiled once, at setup, into the source tree's cache; each process still
 loads every one it calls the first time it calls it, and OpenCV sets itself up on its first pair.
 Without this the first frames of a run paid for it: in a 20-frame `stereovox demo` the voxel
-mapper took 258 ms and the tracker 191 ms on frame 0 (18-20 and 2-3 ms later), odometry 96 and
-66 ms on frames 1-2 (about 40 later), so the first obstacles came half a second late and the
-summary's p95 was the start-up's. The frames here are made up, small and fixed, and go through
+mapper took 258 ms and the tracker 191 ms on frame 0 (18-20 and 2-3 ms later), stereo 176 (130),
+so the first obstacles came half a second late and the summary's p95 was the start-up's
+(docs/results/reliability.md, session 63). The frames here are made up, small and fixed, and go through
 the codec as a message off the bus would (its arrays read-only: numba compiles for that apart);
 the core they go through is a second instance, so the service's own starts clean.
 """
