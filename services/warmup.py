@@ -73,12 +73,17 @@ def stereo_frames(count: int = FRAMES) -> list[StereoFrame]:
     return frames
 
 
+def stereo_inputs() -> list[tuple[StereoFrame]]:
+    """The stereo stage's and odometry's inputs, frame by frame."""
+    return [(frame,) for frame in stereo_frames()]
+
+
 def ego_motions(count: int = FRAMES) -> list[EgoMotion]:
     """The vehicle driving ahead ``STEP_M`` a frame, as odometry would say."""
     out = []
     for k in range(count):
         pose, delta = np.eye(4), np.eye(4)
-        pose[0, 3], delta[0, 3] = STEP_M * k, -STEP_M if k else 0.0
+        pose[0, 3], delta[0, 3] = STEP_M * k, STEP_M if k else 0.0  # pose_k = pose_k-1 @ delta
         out.append(off_the_wire(EgoMotion(frame_id=k, stamp_ns=k * 100_000_000, pose=pose, delta=delta,
                                           inliers=100, inlier_ratio=0.9, valid=True, world_epoch=1)))  # fmt: skip
     return out
@@ -119,14 +124,18 @@ def clouds_and_motions(count: int = FRAMES) -> list[tuple[PointCloud, EgoMotion]
     return list(zip(box_clouds(count), ego_motions(count), strict=True))
 
 
-def warm(name: str, process: Callable[..., object], inputs: Sequence[Sequence[Message]]) -> float:
-    """Each frame's inputs (in the stage's order) through ``process``; the seconds it took.
+def warm(
+    name: str, core: Callable[[], Callable[..., object]], inputs: Callable[[], Sequence[Sequence[Message]]]
+) -> float:
+    """Each frame's ``inputs()`` (in the stage's order) through a new ``core()``; the seconds it took.
 
-    A failure is logged and the service starts anyway: its first frames are then slow, not lost.
+    A failure, in making either, is logged and the service starts anyway: its first frames are then
+    slow, not lost.
     """
     start = time.perf_counter()
     try:
-        for frame in inputs:
+        process = core()
+        for frame in inputs():
             process(*frame)
     except Exception:  # a warm-up must never keep a service from starting
         log.warning("%s: warm-up failed; its first frames will load the compiled code", name, exc_info=True)

@@ -149,13 +149,19 @@ def test_the_warm_up_leaves_the_stages_own_cores_as_they_were(real_run: Path) ->
 
 
 def test_a_failing_warm_up_is_logged_and_the_service_starts(caplog: pytest.LogCaptureFixture) -> None:
+    """Whether the core fails on a frame or the frames cannot be made."""
+
     def broken(frame: object) -> None:
         raise RuntimeError("no such kernel")
 
+    def no_frames() -> list[tuple[object]]:
+        raise ValueError("no rig")
+
     with caplog.at_level(logging.INFO, logger="services.warmup"):
-        seconds = warmup.warm("odometry", broken, [(f,) for f in warmup.stereo_frames(2)])
-    assert seconds >= 0.0
+        assert warmup.warm("odometry", lambda: broken, warmup.stereo_inputs) >= 0.0
+        assert warmup.warm("tracker", lambda: broken, no_frames) >= 0.0
     assert "odometry: warm-up failed" in caplog.text and "no such kernel" in caplog.text
+    assert "tracker: warm-up failed" in caplog.text and "no rig" in caplog.text
 
 
 def test_the_made_up_frames_are_what_a_subscriber_gets() -> None:

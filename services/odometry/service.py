@@ -69,6 +69,6 @@ def stage(cfg: Config, initial_epoch: int | None = None) -> Stage:
         process=process,
         empty=empty,
         degenerate=lambda: not last.valid,
-        warm=lambda: warmup.warm(NAME, StereoOdometry.from_config(cfg).process, [(f,) for f in warmup.stereo_frames()]),
+        warm=lambda: warmup.warm(NAME, lambda: StereoOdometry.from_config(cfg).process, warmup.stereo_inputs),
     )
 

@@ -48,5 +48,5 @@ def stage(cfg: Config) -> Stage:
         process=process,
         empty=empty,
         degenerate=lambda: core.last_degenerate,
-        warm=lambda: warmup.warm(NAME, StereoDepth.from_config(cfg).process, [(f,) for f in warmup.stereo_frames()]),
+        warm=lambda: warmup.warm(NAME, lambda: StereoDepth.from_config(cfg).process, warmup.stereo_inputs),
     )

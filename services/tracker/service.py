@@ -45,7 +45,7 @@ def stage(cfg: Config) -> Stage:
         process=process,
         empty=empty,
         counters=lambda: dict(getattr(core, "counters", {})),
-        warm=lambda: warmup.warm(NAME, Tracker.from_config(cfg).process, warm_frames()),
+        warm=lambda: warmup.warm(NAME, lambda: Tracker.from_config(cfg).process, warm_frames),
     )
 
 

@@ -42,6 +42,6 @@ def stage(cfg: Config) -> Stage:
         process=process,
         empty=empty,
         counters=lambda: dict(getattr(core, "counters", {})),
-        warm=lambda: warmup.warm(NAME, VoxelMapper.from_config(cfg).process, warmup.clouds_and_motions()),
+        warm=lambda: warmup.warm(NAME, lambda: VoxelMapper.from_config(cfg).process, warmup.clouds_and_motions),
     )
 
