@@ -27,8 +27,8 @@ log = logging.getLogger(__name__)
 
 M = TypeVar("M", bound=Message)
 
-#: frames each core is given: the tracker's left-behind test looks three back, odometry's second
-#: and third frames load what its first does not.
+#: frames each core is given: the tracker's left-behind test looks three back, and the made-up cloud
+#: loses a box after frame 2 (``box_clouds``).
 FRAMES: int = 6
 #: the made-up rig: the synthetic scenarios' (common/scenarios/render.py), smaller.
 WIDTH, HEIGHT, FOCAL, BASELINE, CAMERA_HEIGHT = 320, 240, 300.0, 0.4, 1.5
