@@ -22,10 +22,9 @@ from common.config import load_config
 from common.messages import StereoFrame
 from common.recording import open_recording
 from services.stereo_depth.core import StereoDepth
+from services.stereo_depth.matcher import STEPS as MATCH_STEPS
 
-STEPS: tuple[str, ...] = (
-    "sgbm_coarse", "sgbm_fine", "lr_check", "fill", "subpixel", "sky", "reproject", "keypoints", "total",
-)  # fmt: skip
+STEPS: tuple[str, ...] = (*MATCH_STEPS, "reproject", "keypoints", "total")
 
 
 def measure(core: StereoDepth, frames: Sequence[StereoFrame], repeat: int) -> dict[str, dict[str, float]]:

@@ -87,8 +87,7 @@ class StereoDepth:
         return tracker.update(left, right, disparity, frame.frame_id, reach)
 
     def step_timings_ms(self) -> dict[str, float]:
-        """The last frame's milliseconds per step: sgbm_coarse, sgbm_fine, lr_check, fill, subpixel, reproject,
-        keypoints, total."""
+        """The last frame's milliseconds per step: the matcher's (``matcher.STEPS``), reproject, keypoints, total."""
         steps = dict(self._last_matcher.timings_ms) if self._last_matcher else {}
         steps["reproject"] = self.last_timings_ms.get("reproject", 0.0)
         steps["keypoints"] = self.last_timings_ms.get("keypoints", 0.0)
