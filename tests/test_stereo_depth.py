@@ -17,6 +17,7 @@ from common.evaluation.stereo import d1_frame
 from common.geometry import camera_to_vehicle
 from common.messages import Calibration, StereoFrame
 from services.stereo_depth import StereoDepth
+from services.stereo_depth.matcher import widened
 from services.stereo_depth.occlusion import fill_hidden
 
 WIDTH, HEIGHT = 320, 240
@@ -96,6 +97,46 @@ def test_near_surfaces_beyond_the_full_resolution_range_come_from_the_coarse_pas
     assert np.nanmedian(box) == pytest.approx(FX * BASELINE / BOX_DEPTH, rel=0.02)
     # the wall's 32.5 px are 16.25 half-resolution pixels: a 0.3 px sub-pixel error there is 1.8 %
     assert np.nanmedian(wall) == pytest.approx(FX * BASELINE / PLANE_DEPTH, rel=0.05)
+
+
+def _pole_scene(seed: int, d_wall: float = 10.0, d_pole: int = 14, cols: tuple[int, int] = (150, 158)) -> StereoFrame:
+    """A pole 8 px wide at 14 px of disparity before a wall at 10 px: far, thin, a depth step on each side."""
+    rng = np.random.default_rng(seed)
+    wall, pole = blob_texture(rng, HEIGHT, WIDTH + 32), blob_texture(rng, HEIGHT, WIDTH + 32)
+    map_x = np.broadcast_to(np.arange(WIDTH, dtype=np.float32) + np.float32(d_wall), (HEIGHT, WIDTH))
+    map_y = np.broadcast_to(np.arange(HEIGHT, dtype=np.float32)[:, None], (HEIGHT, WIDTH))
+    right = cv2.remap(wall, np.ascontiguousarray(map_x), np.ascontiguousarray(map_y), cv2.INTER_LINEAR)
+    left = wall[:, :WIDTH].copy()
+    rows, (lo, hi) = slice(40, 200), cols
+    left[rows, lo:hi] = pole[rows, lo:hi]
+    right[rows, lo - d_pole : hi - d_pole] = pole[rows, lo:hi]
+    return StereoFrame(frame_id=1, stamp_ns=1, left=left, right=right, calib=_calib())
+
+
+def test_a_pair_matched_twice_as_wide_fattens_a_thin_pole_half_as_much_in_the_left_images_columns() -> None:
+    """``upsample_x`` 2: SGM's block and penalties count in the widened pixels, so the wall beside a
+    far pole takes the pole's disparity over about half the columns (0.54 x on these seeds)."""
+    fattened, kept = {}, {}
+    for factor in (1, 2):
+        core = _core(upsample_x=factor)
+        fattened[factor] = kept[factor] = 0
+        for seed in range(3):
+            _, disp = core.process(_pole_scene(seed))
+            assert disp.disparity.shape == (HEIGHT, WIDTH)
+            d = disp.disparity[50:190]
+            beside = np.concatenate([d[:, 144:150], d[:, 158:164]], axis=1)
+            fattened[factor] += int(np.sum(beside > 12.0))
+            kept[factor] += int(np.sum(np.abs(d[:, 150:158] - 14.0) <= 1.0))
+            assert np.nanmedian(np.abs(disp.disparity[:, 60:140] - 10.0)) < 0.02  # the wall, in original pixels
+    assert fattened[2] < 0.75 * fattened[1], fattened
+    assert kept[2] >= 0.98 * kept[1], kept
+
+
+def test_a_widened_image_keeps_every_original_column() -> None:
+    image = np.random.default_rng(0).integers(0, 256, (5, 7, 3)).astype(np.uint8)
+    wide = widened(image, 2)
+    assert wide.shape == (5, 14, 3) and wide.dtype == np.uint8
+    assert np.array_equal(wide[:, ::2], image)
 
 
 def test_colours_are_the_left_image_pixels() -> None:
@@ -239,7 +280,14 @@ def test_blank_pair_gives_an_empty_cloud_and_then_recovers(value: int, noise: fl
 
 @pytest.mark.parametrize(
     "setting",
-    [{"lr_check": "sideways"}, {"mode": "fast"}, {"block_size": 4}, {"min_depth_m": 0}, {"keypoint_cell_px": 0}],
+    [
+        {"lr_check": "sideways"},
+        {"mode": "fast"},
+        {"block_size": 4},
+        {"min_depth_m": 0},
+        {"keypoint_cell_px": 0},
+        {"upsample_x": 0},
+    ],
 )
 def test_bad_configuration_is_refused_at_construction(setting: dict[str, object]) -> None:
     with pytest.raises(ConfigError):
