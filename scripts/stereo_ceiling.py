@@ -25,6 +25,7 @@ stage's disparity map replaced as the variant says, and is scored by ``evaluate`
   one is right: a perfect choice between its own two plateaus, which is what a ramp filter
   (services/stereo_depth/ramps.py) can at best do;
 - ``truth in holes``: the truth wherever the matcher gives no disparity;
+- ``matcher, twice as wide``: no oracle, the matcher itself on the pair widened twice (``WIDE``);
 - ``..., low limits``: as the variant, with the mapper's noise limits lowered (``LOW_LIMITS``).
 
 Sessions 62 and 63's tables and figure (docs/results/voxel.md) came from here. The figure, ``ceiling.png``
@@ -61,6 +62,8 @@ STEP_PX: float = 1.0
 NOISE_PX: float = 0.25
 #: the mapper's noise limits for exact points (defaults: 20 voxels, 8 points a voxel).
 LOW_LIMITS: tuple[str, ...] = ("voxel.min_cluster_voxels=6", "voxel.min_points_per_voxel=2")
+#: the matcher on the pair widened twice (``stereo.upsample_x``, services/stereo_depth/matcher.py).
+WIDE: tuple[str, ...] = ("stereo.upsample_x=2",)
 
 
 @dataclass(frozen=True)
@@ -91,6 +94,8 @@ VARIANTS: tuple[Variant, ...] = (
     Variant("truth where between, near steps", steps="between", reach_px=3),
     Variant("truth where flipped, near steps", steps="flipped", reach_px=3),
     Variant("matcher, low limits", sets=LOW_LIMITS),
+    Variant("matcher, twice as wide", sets=WIDE),
+    Variant("matcher, twice as wide, low limits", sets=(*WIDE, *LOW_LIMITS)),
     Variant("truth near steps, low limits", steps="truth", reach_px=3, sets=LOW_LIMITS),
     Variant("wrong dropped near steps", steps="drop wrong", reach_px=3),
     Variant("wrong dropped near steps, low limits", steps="drop wrong", reach_px=3, sets=LOW_LIMITS),
