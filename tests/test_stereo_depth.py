@@ -132,11 +132,17 @@ def test_a_pair_matched_twice_as_wide_fattens_a_thin_pole_half_as_much_in_the_le
     assert kept[2] >= 0.98 * kept[1], kept
 
 
-def test_a_widened_image_keeps_every_original_column() -> None:
-    image = np.random.default_rng(0).integers(0, 256, (5, 7, 3)).astype(np.uint8)
+@pytest.mark.parametrize("shape", [(5, 7, 3), (6, 9)])
+def test_a_widened_image_keeps_every_original_column_and_is_opencvs_cubic_between(shape: tuple[int, ...]) -> None:
+    image = np.random.default_rng(0).integers(0, 256, shape).astype(np.uint8)
     wide = widened(image, 2)
-    assert wide.shape == (5, 14, 3) and wide.dtype == np.uint8
+    assert wide.shape == (shape[0], 2 * shape[1], *shape[2:]) and wide.dtype == np.uint8
     assert np.array_equal(wide[:, ::2], image)
+    grid = np.arange(2 * shape[1], dtype=np.float32) / 2
+    map_x = np.ascontiguousarray(np.broadcast_to(grid, wide.shape[:2]))
+    map_y = np.ascontiguousarray(np.broadcast_to(np.arange(shape[0], dtype=np.float32)[:, None], wide.shape[:2]))
+    remapped = cv2.remap(image, map_x, map_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
+    assert np.array_equal(wide, remapped)
 
 
 def test_colours_are_the_left_image_pixels() -> None:
