@@ -89,8 +89,8 @@ class StereoConfig:
     pre_filter_cap: int = 63  # lower caps gain 0.3 points of D1 but lose sub-pixel precision
     mode: str = "3way"  # 3way | sgbm | hh | hh4
     # > 1: match the pair widened this many times, every pixel setting in the widened pixels (matcher.py). 2 on
-    # the synthetic camera: urban one-cluster 89.4 -> 93.6 %, at 2.3 x the stage's time; on KITTI raw density
-    # 91.1 -> 82.5 %, so 1 (docs/results/voxel.md, "Session 64")
+    # the synthetic camera: urban one-cluster 89.4 -> 93.0 %, at 1.86 x the stage's time; on KITTI raw density
+    # 91.1 -> 86.9 %, so 1 (docs/results/voxel.md, "Session 64")
     upsample_x: int = 1
     color_matching: bool = False  # False = match grey images (measured better and faster)
     fill_left_border: bool = True  # pad on the left so the first columns get a disparity too
