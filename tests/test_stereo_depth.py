@@ -35,6 +35,14 @@ def _calib(**changes: float) -> Calibration:
     return dataclasses.replace(calib, **changes)
 
 
+def _seen_from_the_right(surface: np.ndarray, disparity: float) -> np.ndarray:
+    """The right view of a fronto-parallel ``surface`` (indexed by left-image column) at ``disparity``,
+    its fractional shift resampled linearly."""
+    map_x = np.broadcast_to(np.arange(WIDTH, dtype=np.float32) + np.float32(disparity), (HEIGHT, WIDTH))
+    map_y = np.broadcast_to(np.arange(HEIGHT, dtype=np.float32)[:, None], (HEIGHT, WIDTH))
+    return cv2.remap(surface, np.ascontiguousarray(map_x), np.ascontiguousarray(map_y), cv2.INTER_LINEAR)
+
+
 def _scene(seed: int = 0) -> StereoFrame:
     """A fronto-parallel textured wall at 3.7 m and a textured box face at 2.5 m, seen by both cameras.
 
@@ -46,10 +54,7 @@ def _scene(seed: int = 0) -> StereoFrame:
     d_wall, d_box = FX * BASELINE / PLANE_DEPTH, round(FX * BASELINE / BOX_DEPTH)
     wall = blob_texture(rng, HEIGHT, WIDTH + 32)  # indexed by left-image column
     box = blob_texture(rng, HEIGHT, WIDTH + d_box)
-    map_x = np.broadcast_to(np.arange(WIDTH, dtype=np.float32) + np.float32(d_wall), (HEIGHT, WIDTH))
-    map_y = np.broadcast_to(np.arange(HEIGHT, dtype=np.float32)[:, None], (HEIGHT, WIDTH))
-    right = cv2.remap(wall, np.ascontiguousarray(map_x), np.ascontiguousarray(map_y), cv2.INTER_LINEAR)
-    left = wall[:, :WIDTH].copy()
+    left, right = wall[:, :WIDTH].copy(), _seen_from_the_right(wall, d_wall)
     rows, cols = BOX
     left[rows, cols] = box[rows, cols]
     right[rows, cols.start - d_box : cols.stop - d_box] = box[rows, cols]
@@ -103,10 +108,7 @@ def _pole_scene(seed: int, d_wall: float = 10.0, d_pole: int = 14, cols: tuple[i
     """A pole 8 px wide at 14 px of disparity before a wall at 10 px: far, thin, a depth step on each side."""
     rng = np.random.default_rng(seed)
     wall, pole = blob_texture(rng, HEIGHT, WIDTH + 32), blob_texture(rng, HEIGHT, WIDTH + 32)
-    map_x = np.broadcast_to(np.arange(WIDTH, dtype=np.float32) + np.float32(d_wall), (HEIGHT, WIDTH))
-    map_y = np.broadcast_to(np.arange(HEIGHT, dtype=np.float32)[:, None], (HEIGHT, WIDTH))
-    right = cv2.remap(wall, np.ascontiguousarray(map_x), np.ascontiguousarray(map_y), cv2.INTER_LINEAR)
-    left = wall[:, :WIDTH].copy()
+    left, right = wall[:, :WIDTH].copy(), _seen_from_the_right(wall, d_wall)
     rows, (lo, hi) = slice(40, 200), cols
     left[rows, lo:hi] = pole[rows, lo:hi]
     right[rows, lo - d_pole : hi - d_pole] = pole[rows, lo:hi]
