@@ -9,12 +9,15 @@ import pytest
 from test_tracker import EDGE, box_voxels, new_tracker, of_voxels, step
 
 from common.corner_motion import (
+    GRID_CELLS,
     HISTORY,
     MAX_GAP,
     CornerHistory,
     CornerVelocity,
+    _chained,
     _fit_lines,
     _median,
+    _owners,
     corner_velocity,
 )
 from common.messages import Cluster, Clusters, EgoMotion
@@ -192,6 +195,35 @@ def test_a_clusters_corners_outvote_a_standing_neighbours_merged_into_it() -> No
     np.testing.assert_allclose(found.velocity[0], [1.5, 0.0], atol=1e-6)
     np.testing.assert_allclose(found.velocity[1], [0.0, 0.0], atol=1e-6)
     assert np.all(found.sigma > 0.0) and np.all(np.isfinite(found.sigma))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_grid_and_the_hash_give_each_corner_the_same_piece(seed: int) -> None:
+    # pieces overlapping in places (a voxel of two: the lower piece), voxels of no piece (-1),
+    # corners in none, one NaN, one too young and one not seen this frame
+    rng = np.random.default_rng(seed)
+    voxels = rng.integers(-6, 7, (400, 3)) + np.array([80, 0, 0])
+    owner = rng.integers(-1, 5, 400)
+    now = (rng.integers(-8, 9, (300, 3)) + np.array([80, 0, 0]) + rng.uniform(0.0, 1.0, (300, 3))) * EDGE
+    now[7] = np.nan
+    n, missed = np.full(300, HISTORY), np.zeros(300, dtype=np.int64)
+    n[11], missed[12] = 2, 1
+    grid = np.full(GRID_CELLS, -1, dtype=np.int32)
+    whose, count = _owners(voxels, owner, now, n, missed, 3, EDGE, 5, grid)
+    hashed_whose, hashed_count = _chained(voxels, owner, now, n, missed, 3, EDGE, 5)
+    assert whose.tolist() == hashed_whose.tolist() and count.tolist() == hashed_count.tolist()
+    assert (grid == -1).all()  # left as found, for the next frame
+    assert whose[7] == whose[11] == whose[12] == -1
+    assert 0 < (whose >= 0).sum() < 300
+    cells = np.floor(np.nan_to_num(now) / EDGE).astype(np.int64)
+    for c in np.flatnonzero(whose >= 0)[:40]:
+        holders = owner[(voxels == cells[c]).all(axis=1) & (owner >= 0)]
+        assert whose[c] == holders.min()
+    # pieces spread over more cells than the grid holds are hashed, with the same answer
+    far = voxels.copy()
+    far[owner == 4] += np.array([0, 0, 4000])
+    wide = _owners(far, owner, now, n, missed, 3, EDGE, 5, grid)
+    assert wide[0].tolist() == _chained(far, owner, now, n, missed, 3, EDGE, 5)[0].tolist()
 
 
 def _ranged(velocity: tuple[float, float], seed: int, range_std: float = 0.5) -> CornerHistory:
