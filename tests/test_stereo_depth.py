@@ -17,6 +17,7 @@ from common.evaluation.stereo import d1_frame
 from common.geometry import camera_to_vehicle
 from common.messages import Calibration, StereoFrame
 from services.stereo_depth import StereoDepth
+from services.stereo_depth.far_band import far_reach_px, far_rows, merged
 from services.stereo_depth.matcher import widened
 from services.stereo_depth.occlusion import fill_hidden
 
@@ -115,23 +116,60 @@ def _pole_scene(seed: int, d_wall: float = 10.0, d_pole: int = 14, cols: tuple[i
     return StereoFrame(frame_id=1, stamp_ns=1, left=left, right=right, calib=_calib())
 
 
+#: how the pair is matched: as it is, widened twice, and widened twice only in the rows where the
+#: volume beyond 5 m projects (rows 0-210 of this rig, the pole's 40-200 among them; far_band.py)
+WIDENINGS = {"as is": {}, "widened": {"upsample_x": 2}, "far rows widened": {"upsample_x": 2, "upsample_beyond_m": 5.0}}
+
+
 def test_a_pair_matched_twice_as_wide_fattens_a_thin_pole_less_in_the_left_images_columns() -> None:
     """``upsample_x`` 2: SGM's block and penalties count in the widened pixels, so the wall beside a
-    far pole takes the pole's disparity over fewer columns (0.63 x on these seeds)."""
+    far pole takes the pole's disparity over fewer columns (0.63 x on these seeds), whether the
+    whole pair or only its far rows are widened."""
     fattened, kept = {}, {}
-    for factor in (1, 2):
-        core = _core(upsample_x=factor)
-        fattened[factor] = kept[factor] = 0
+    for name, settings in WIDENINGS.items():
+        core = _core(**settings)
+        fattened[name] = kept[name] = 0
         for seed in range(3):
             _, disp = core.process(_pole_scene(seed))
             assert disp.disparity.shape == (HEIGHT, WIDTH)
             d = disp.disparity[50:190]
             beside = np.concatenate([d[:, 144:150], d[:, 158:164]], axis=1)
-            fattened[factor] += int(np.sum(beside > 12.0))
-            kept[factor] += int(np.sum(np.abs(d[:, 150:158] - 14.0) <= 1.0))
+            fattened[name] += int(np.sum(beside > 12.0))
+            kept[name] += int(np.sum(np.abs(d[:, 150:158] - 14.0) <= 1.0))
             assert np.nanmedian(np.abs(disp.disparity[:, 60:140] - 10.0)) < 0.02  # the wall, in original pixels
-    assert fattened[2] < 0.75 * fattened[1], fattened
-    assert kept[2] >= 0.98 * kept[1], kept
+        assert (core.step_timings_ms()["far_band"] > 0.0) == ("upsample_beyond_m" in settings)
+    for name in ("widened", "far rows widened"):
+        assert fattened[name] < 0.75 * fattened["as is"], fattened
+        assert kept[name] >= 0.98 * kept["as is"], kept
+
+
+def test_only_the_far_rows_are_matched_again_and_the_rest_is_as_unwidened() -> None:
+    """Beyond 8 m the volume projects onto rows 45-177 of this rig; below them the disparity is the
+    unwidened matcher's to the bit, and within them a hole the widened pass leaves keeps its value."""
+    as_is, far = _core(), _core(upsample_x=2, upsample_beyond_m=8.0)
+    frame = _pole_scene(0)
+    plain, banded = as_is.process(frame)[1].disparity, far.process(frame)[1].disparity
+    first, last = far_rows(frame.calib, Config().volume.seen(), 8.0)
+    assert (first, last) == (45, 178)
+    assert np.array_equal(plain[last:], banded[last:], equal_nan=True)
+    assert np.array_equal(plain[:first], banded[:first], equal_nan=True)
+    assert not np.array_equal(plain[first:last], banded[first:last], equal_nan=True)
+    assert np.isfinite(banded[first:last]).mean() >= np.isfinite(plain[first:last]).mean() - 0.005
+
+
+def test_a_widened_value_is_taken_short_of_its_reach_and_a_hole_keeps_an_unwidened_one_not_in_front() -> None:
+    nan = np.nan
+    # columns 0-4 as the widened pass saw them; 5-23 a hole it left, with nothing widened within 8 columns of 14-23
+    before = np.array([10, 10, nan, 30, 20, 11, 14, 10, 10, 10, 10, 10, 10, 10, 25, 25, 25, 25, 25, 25, 25, 25, 25, 25])
+    wide = np.array([11, nan, 12, 12, 29] + [nan] * 19)
+    # a reach of 32 px trusts widened values under 28 where the unwidened pass does not say 28 or more
+    out = merged(np.vstack([before, before]).astype(np.float32), wide[None].astype(np.float32), 1, 32)
+    assert np.array_equal(out[0], before.astype(np.float32), equal_nan=True)  # a row outside the band
+    expected = [11, 10, 12, 30, nan, 11, nan, 10, 10, 10, 10, 10, 10, 10, 25, 25, 25, 25, 25, 25, 25, 25, 25, 25]
+    # kept: a hole's value no nearer than the widened values beside it (11, 12) plus a pixel, or with none
+    # beside it; dropped: 20 and 14, in front of them (where an unwidened pass fattens a pole onto the wall)
+    assert np.array_equal(out[1], np.array(expected, dtype=np.float32), equal_nan=True)
+    assert far_reach_px(_calib(), 5.0) == 32  # 300 x 0.4 / 5 = 24 px, and the margin
 
 
 @pytest.mark.parametrize("shape", [(5, 7, 3), (6, 9)])

@@ -19,6 +19,7 @@ import numpy as np
 from common.config import Config, StereoConfig, VolumeConfig
 from common.errors import ConfigError
 from common.messages import Calibration, Disparity, PointCloud, StereoFrame
+from services.stereo_depth.far_band import far_reach_px, far_rows
 from services.stereo_depth.keypoints import KeypointParams, Keypoints, KeypointTracker
 from services.stereo_depth.matcher import MultiResolutionMatcher
 from services.stereo_depth.ramps import RampFilter
@@ -44,7 +45,10 @@ class StereoDepth:
             raise ConfigError("stereo.num_disparities must be >= 0 (0 = from calibration), decimation >= 1")
         if stereo.keypoints < 0 or stereo.keypoint_cell_px < 1:
             raise ConfigError("stereo.keypoints must be >= 0 (0 = off), keypoint_cell_px >= 1")
+        if stereo.upsample_beyond_m < 0:
+            raise ConfigError(f"stereo.upsample_beyond_m must be >= 0 not {stereo.upsample_beyond_m}")
         self.cfg = stereo
+        self.volume = volume
         seen = volume.seen()  # and the lookahead beyond it
         self.volume_reach_m = float(np.hypot(seen.x_max, seen.y_half))
         crop = VolumeCrop.from_config(seen, stereo.below_volume_m)
@@ -56,7 +60,7 @@ class StereoDepth:
         self.reprojector = Reprojector(crop, stereo.min_points_depth_m, stereo.decimation, bias, ramps)
         corners = KeypointParams(max_count=stereo.keypoints, cell_px=stereo.keypoint_cell_px)
         self.keypoint_tracker = KeypointTracker(corners) if stereo.keypoints else None
-        self._matchers: dict[int, MultiResolutionMatcher] = {}
+        self._matchers: dict[tuple[int, ...], MultiResolutionMatcher] = {}
         self.last_degenerate = False
         self.last_timings_ms: dict[str, float] = {}
         self._last_matcher: MultiResolutionMatcher | None = None
@@ -119,11 +123,16 @@ class StereoDepth:
 
     def _matcher(self, calib: Calibration) -> MultiResolutionMatcher:
         disparities = self.search_range(calib)
-        if disparities not in self._matchers:
+        far = None
+        if self.cfg.upsample_x > 1 and self.cfg.upsample_beyond_m > 0:
+            beyond = self.cfg.upsample_beyond_m
+            far = (*far_rows(calib, self.volume.seen(), beyond), far_reach_px(calib, beyond))
+        key = (disparities, *(far or ()))
+        if key not in self._matchers:
             if len(self._matchers) >= MAX_MATCHERS:  # a stream of ever-new calibrations must not grow memory
                 self._matchers.clear()
-            self._matchers[disparities] = MultiResolutionMatcher.for_range(self.cfg, disparities)
-        return self._matchers[disparities]
+            self._matchers[key] = MultiResolutionMatcher.for_range(self.cfg, disparities, far)
+        return self._matchers[key]
 
     def _timed(self, stage: str, work: Callable[[], T]) -> T:
         start = time.perf_counter()

@@ -12,9 +12,10 @@ density on KITTI raw 0009 and Middlebury and 0.15 points more D1-est on Middlebu
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
-from typing import TypeVar
+from typing import NamedTuple, TypeVar
 
 import cv2
 import numpy as np
@@ -23,6 +24,7 @@ from common.config import StereoConfig
 from common.errors import ConfigError
 from services.stereo_depth.consistency import left_right_check, textured, upsample, within_neighbours
 from services.stereo_depth.exposure import contrast_gain
+from services.stereo_depth.far_band import MARGIN_ROWS, merged
 from services.stereo_depth.occlusion import fill_hidden
 from services.stereo_depth.sgbm import DisparityMap, Image, SgbmParams, SgbmPass, round_up_16
 from services.stereo_depth.sky import sky_mask
@@ -33,8 +35,9 @@ T = TypeVar("T")
 LR_MODES: tuple[str, ...] = ("coarse", "full", "none")
 #: coarse pixels this close to the fine range's end are trusted over the fine pass.
 NEAR_MARGIN_PX: float = 4.0
-#: what ``match`` times: widening the pair (``upsample_x``), both passes, the check, fills, sub-pixel, sky.
-STEPS: tuple[str, ...] = ("upsample", "sgbm_coarse", "sgbm_fine", "lr_check", "fill", "subpixel", "sky")
+#: what ``match`` times: widening the pair (``upsample_x``), both passes, the check, fills, sub-pixel,
+#: the far rows' widened pass (``upsample_beyond_m``), sky.
+STEPS: tuple[str, ...] = ("upsample", "sgbm_coarse", "sgbm_fine", "lr_check", "fill", "subpixel", "far_band", "sky")
 #: side of the square over which the texture test averages the grey gradient.
 TEXTURE_WINDOW_PX: int = 9
 
@@ -65,6 +68,15 @@ def _cubic(t: float, a: float = -0.75) -> float:
     if t <= 1.0:
         return (a + 2.0) * t**3 - (a + 3.0) * t**2 + 1.0
     return a * t**3 - 5.0 * a * t**2 + 8.0 * a * t - 4.0 * a
+
+
+class FarPass(NamedTuple):
+    """A widened matcher for the rows ``first`` to ``last`` (far_band.py), searching ``reach_px``."""
+
+    matcher: MultiResolutionMatcher
+    first: int
+    last: int
+    reach_px: int
 
 
 class MultiResolutionMatcher:
@@ -103,16 +115,28 @@ class MultiResolutionMatcher:
         if upsample_x < 1:
             raise ConfigError(f"stereo.upsample_x must be 1 or more, not {upsample_x}")
         self.upsample_x = upsample_x
+        #: the far rows matched again widened (``for_range``'s ``far_rows``); None: none
+        self.far: FarPass | None = None
         #: milliseconds of the last ``match`` per step (``STEPS``).
         self.timings_ms: dict[str, float] = {}
 
     @classmethod
-    def for_range(cls, cfg: StereoConfig, max_disparity: int) -> MultiResolutionMatcher:
+    def for_range(
+        cls, cfg: StereoConfig, max_disparity: int, far_rows: tuple[int, int, int] | None = None
+    ) -> MultiResolutionMatcher:
         """Matchers for a search range of ``max_disparity`` full-resolution pixels (a multiple of 16).
 
         With ``cfg.upsample_x`` over 1 every pass works on images that many times wider, so the range
-        and every setting in pixels are in the widened image's pixels.
+        and every setting in pixels are in the widened image's pixels. Given ``far_rows`` (first row,
+        past the last, and the disparities to search there; far_band.py), only those rows are
+        matched widened, after the whole pair is matched as it is.
         """
+        if far_rows is not None and cfg.upsample_x > 1:
+            whole = cls.for_range(dataclasses.replace(cfg, upsample_x=1), max_disparity)
+            first, last, reach_px = far_rows
+            if last > first:
+                whole.far = FarPass(cls.for_range(cfg, min(reach_px, max_disparity)), first, last, reach_px)
+            return whole
         wide = max(cfg.upsample_x, 1)  # (under 1 is refused by the constructor)
         max_disparity *= wide
         fine_range = min(round_up_16(cfg.fine_disparities), max_disparity)
@@ -168,6 +192,14 @@ class MultiResolutionMatcher:
         """
         self.timings_ms = dict.fromkeys(STEPS, 0.0)
         left, right = self._intensity(left_rgb), self._intensity(right_rgb)
+        fused = self._unfilled(left, right)
+        if self.far is not None:
+            fused = self._timed("far_band", lambda: self._with_far_rows(fused, left, right))
+        fused = self._timed("fill", lambda: self._fill_hidden(fused, left))
+        return self._timed("sky", lambda: self._drop_sky(fused, left, left_rgb))
+
+    def _unfilled(self, left: Image, right: Image) -> DisparityMap:
+        """Matched, checked and refined, before hidden pixels are filled and the sky dropped."""
         wide_left, wide_right, f = left, right, self.upsample_x
         if f > 1:
             wide_left, wide_right = self._timed("upsample", lambda: (widened(left, f), widened(right, f)))
@@ -175,8 +207,16 @@ class MultiResolutionMatcher:
         fused = self._timed("subpixel", lambda: self._refine(fused, wide_left, wide_right))
         if f > 1:
             fused = np.ascontiguousarray(fused[:, ::f] / np.float32(f))
-        fused = self._timed("fill", lambda: self._fill_hidden(fused, left))
-        return self._timed("sky", lambda: self._drop_sky(fused, left, left_rgb))
+        return fused
+
+    def _with_far_rows(self, disparity: DisparityMap, left: Image, right: Image) -> DisparityMap:
+        """The far rows matched widened (``MARGIN_ROWS`` more each side for SGM's vertical paths), merged in."""
+        far = self.far
+        assert far is not None
+        far.matcher.timings_ms = dict.fromkeys(STEPS, 0.0)  # (its own steps, within this one's "far_band")
+        top, bottom = max(0, far.first - MARGIN_ROWS), min(left.shape[0], far.last + MARGIN_ROWS)
+        rows = far.matcher._unfilled(left[top:bottom], right[top:bottom])
+        return merged(disparity, rows[far.first - top : far.last - top], far.first, far.reach_px)
 
     def _matched(self, left: Image, right: Image, original_left: Image, original_right: Image) -> DisparityMap:
         """Both SGM passes, checked and fused: the full-resolution one on ``left`` and ``right``, the

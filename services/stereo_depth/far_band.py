@@ -1,0 +1,70 @@
+"""The rows of the image where far objects are seen, and how a pass widened over them is merged in.
+
+A pixel of disparity is worth range ** 2 / (fx * baseline) metres: 0.9 m at 15 m on the synthetic
+rig, 0.1 m at 5 m. Matching the pair widened (``stereo.upsample_x``) pays where it is worth
+metres, so with ``stereo.upsample_beyond_m`` set only the rows where the volume of interest beyond
+that range projects are widened, over the short range of disparities it needs, and the
+unwidened disparity is kept wherever the widened pass has none. Measured (docs/results/voxel.md,
+"Session 65"): on synthetic urban the widened rows alone give what widening the whole pair gave,
+and keeping the unwidened values in its holes keeps KITTI raw's density, which widening the whole
+pair lost.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from common.config import VolumeConfig
+from common.messages import Calibration
+from services.stereo_depth.sgbm import DisparityMap, round_up_16
+
+#: rows matched above and below the band and thrown away: SGM's vertical paths start there.
+MARGIN_ROWS: int = 16
+#: widened values this close to the end of the band's range are not trusted (as matcher.NEAR_MARGIN_PX).
+REACH_MARGIN_PX: float = 4.0
+#: a hole in the widened rows keeps the unwidened value only if it is no nearer than the widened
+#: values within this many columns either side, plus ``HOLE_STEP_PX``: beside a thin pole the hole
+#: is where the unwidened pass drew the pole's disparity onto the wall behind it.
+HOLE_REACH_PX: int = 8
+HOLE_STEP_PX: float = 1.0
+
+
+def far_rows(calib: Calibration, volume: VolumeConfig, beyond_m: float) -> tuple[int, int]:
+    """The rows (first, past the last) where the volume of interest beyond ``beyond_m`` (m ahead)
+    projects in the left image; (0, 0) where none of it does."""
+    vehicle_to_camera = np.linalg.inv(np.asarray(calib.cam_to_vehicle, dtype=np.float64))
+    corners = np.array(
+        [(x, y, z, 1.0) for x in (beyond_m, max(volume.x_max, beyond_m)) for y in (-volume.y_half, volume.y_half)
+         for z in (volume.z_min, volume.z_max)]
+    )  # fmt: skip
+    seen = (vehicle_to_camera @ corners.T).T
+    seen = seen[seen[:, 2] > 0.1]  # in front of the camera
+    if len(seen) == 0:
+        return 0, 0
+    rows = calib.fy * seen[:, 1] / seen[:, 2] + calib.cy
+    first, last = int(np.floor(rows.min())), int(np.ceil(rows.max())) + 1
+    return max(0, min(first, calib.height)), max(0, min(last, calib.height))
+
+
+def far_reach_px(calib: Calibration, beyond_m: float) -> int:
+    """Disparities (full-resolution pixels, a multiple of 16) the widened pass searches: all of the
+    range beyond ``beyond_m``, and the margin it does not trust."""
+    return round_up_16(calib.fx * calib.baseline / beyond_m + REACH_MARGIN_PX)
+
+
+def merged(disparity: DisparityMap, widened: DisparityMap, first: int, reach_px: int) -> DisparityMap:
+    """``disparity`` with the widened pass's values (``widened``: its rows from ``first``) where it
+    has one short of its reach and ``disparity`` does not put the pixel nearer than that; in its
+    holes, ``disparity``'s value only where it is not in front of the widened values beside it."""
+    out = disparity.copy()
+    rows = slice(first, first + widened.shape[0])
+    near = reach_px - REACH_MARGIN_PX
+    before = disparity[rows]
+    with np.errstate(invalid="ignore"):  # NaN: no value, on either side
+        take = (widened < near) & ~(before >= near)
+        beside = np.where(take, widened, np.float32(np.inf)).astype(np.float32)
+        nearest = cv2.erode(beside, np.ones((1, 2 * HOLE_REACH_PX + 1), np.uint8), borderType=cv2.BORDER_REPLICATE)
+        keep = (before >= near) | (before <= nearest + HOLE_STEP_PX)
+    out[rows] = np.where(take, widened, np.where(keep, before, np.float32(np.nan)))
+    return out
