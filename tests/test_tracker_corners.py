@@ -9,17 +9,15 @@ import pytest
 from test_tracker import EDGE, box_voxels, new_tracker, of_voxels, step
 
 from common.corner_motion import (
-    GRID_CELLS,
     HISTORY,
     MAX_GAP,
     CornerHistory,
     CornerVelocity,
-    _chained,
     _fit_lines,
     _median,
-    _owners,
     corner_velocity,
 )
+from common.corner_owners import GRID_CELLS, _chained, owners
 from common.messages import Cluster, Clusters, EgoMotion
 from services.tracker.anchor import footprint
 
@@ -209,7 +207,7 @@ def test_the_grid_and_the_hash_give_each_corner_the_same_piece(seed: int) -> Non
     n, missed = np.full(300, HISTORY), np.zeros(300, dtype=np.int64)
     n[11], missed[12] = 2, 1
     grid = np.full(GRID_CELLS, -1, dtype=np.int32)
-    whose, count = _owners(voxels, owner, now, n, missed, 3, EDGE, 5, grid)
+    whose, count = owners(voxels, owner, now, n, missed, 3, EDGE, 5, grid)
     hashed_whose, hashed_count = _chained(voxels, owner, now, n, missed, 3, EDGE, 5)
     assert whose.tolist() == hashed_whose.tolist() and count.tolist() == hashed_count.tolist()
     assert (grid == -1).all()  # left as found, for the next frame
@@ -222,7 +220,7 @@ def test_the_grid_and_the_hash_give_each_corner_the_same_piece(seed: int) -> Non
     # pieces spread over more cells than the grid holds are hashed, with the same answer
     far = voxels.copy()
     far[owner == 4] += np.array([0, 0, 4000])
-    wide = _owners(far, owner, now, n, missed, 3, EDGE, 5, grid)
+    wide = owners(far, owner, now, n, missed, 3, EDGE, 5, grid)
     assert wide[0].tolist() == _chained(far, owner, now, n, missed, 3, EDGE, 5)[0].tolist()
 
 
