@@ -14,7 +14,7 @@ from common.voxel_keys import bucket, pack
 
 NDArray = npt.NDArray[Any]
 
-#: most cells ``_owners`` lays a dense grid over (1 MB of int32): the world-frame box around a
+#: most cells ``owners`` lays a dense grid over (1 MB of int32): the world-frame box around a
 #: frame's clusters in the paper's volume at 0.25 m is 106,260 cells (229,000 turned 45 degrees);
 #: at 0.1 m it can be 1.6 million, and those frames hash instead.
 GRID_CELLS: int = 1 << 18
