@@ -46,10 +46,10 @@ class StereoDepth:
         if stereo.keypoints < 0 or stereo.keypoint_cell_px < 1:
             raise ConfigError("stereo.keypoints must be >= 0 (0 = off), keypoint_cell_px >= 1")
         if stereo.upsample_beyond_m < 0:
-            raise ConfigError(f"stereo.upsample_beyond_m must be >= 0 not {stereo.upsample_beyond_m}")
+            raise ConfigError(f"stereo.upsample_beyond_m must be >= 0, not {stereo.upsample_beyond_m}")
         self.cfg = stereo
-        self.volume = volume
         seen = volume.seen()  # and the lookahead beyond it
+        self.seen_volume = seen
         self.volume_reach_m = float(np.hypot(seen.x_max, seen.y_half))
         crop = VolumeCrop.from_config(seen, stereo.below_volume_m)
         bias = (stereo.disparity_offset_px, stereo.disparity_edge_px)
@@ -126,7 +126,7 @@ class StereoDepth:
         far = None
         if self.cfg.upsample_x > 1 and self.cfg.upsample_beyond_m > 0:
             beyond = self.cfg.upsample_beyond_m
-            far = (*far_rows(calib, self.volume.seen(), beyond), far_reach_px(calib, beyond))
+            far = (*far_rows(calib, self.seen_volume, beyond), far_reach_px(calib, beyond))
         key = (disparities, *(far or ()))
         if key not in self._matchers:
             if len(self._matchers) >= MAX_MATCHERS:  # a stream of ever-new calibrations must not grow memory
