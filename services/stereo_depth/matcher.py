@@ -134,8 +134,9 @@ class MultiResolutionMatcher:
         if far_rows is not None and cfg.upsample_x > 1:
             whole = cls.for_range(dataclasses.replace(cfg, upsample_x=1), max_disparity)
             first, last, reach_px = far_rows
+            reach_px = min(reach_px, max_disparity)
             if last > first:
-                whole.far = FarPass(cls.for_range(cfg, min(reach_px, max_disparity)), first, last, reach_px)
+                whole.far = FarPass(cls.for_range(cfg, reach_px), first, last, reach_px)
             return whole
         wide = max(cfg.upsample_x, 1)  # (under 1 is refused by the constructor)
         max_disparity *= wide
@@ -193,8 +194,9 @@ class MultiResolutionMatcher:
         self.timings_ms = dict.fromkeys(STEPS, 0.0)
         left, right = self._intensity(left_rgb), self._intensity(right_rgb)
         fused = self._unfilled(left, right)
-        if self.far is not None:
-            fused = self._timed("far_band", lambda: self._with_far_rows(fused, left, right))
+        far = self.far
+        if far is not None:
+            fused = self._timed("far_band", lambda: self._with_far_rows(far, fused, left, right))
         fused = self._timed("fill", lambda: self._fill_hidden(fused, left))
         return self._timed("sky", lambda: self._drop_sky(fused, left, left_rgb))
 
@@ -209,10 +211,9 @@ class MultiResolutionMatcher:
             fused = np.ascontiguousarray(fused[:, ::f] / np.float32(f))
         return fused
 
-    def _with_far_rows(self, disparity: DisparityMap, left: Image, right: Image) -> DisparityMap:
+    @staticmethod
+    def _with_far_rows(far: FarPass, disparity: DisparityMap, left: Image, right: Image) -> DisparityMap:
         """The far rows matched widened (``MARGIN_ROWS`` more each side for SGM's vertical paths), merged in."""
-        far = self.far
-        assert far is not None
         far.matcher.timings_ms = dict.fromkeys(STEPS, 0.0)  # (its own steps, within this one's "far_band")
         top, bottom = max(0, far.first - MARGIN_ROWS), min(left.shape[0], far.last + MARGIN_ROWS)
         rows = far.matcher._unfilled(left[top:bottom], right[top:bottom])
