@@ -333,6 +333,8 @@ def test_blank_pair_gives_an_empty_cloud_and_then_recovers(value: int, noise: fl
         {"min_depth_m": 0},
         {"keypoint_cell_px": 0},
         {"upsample_x": 0},
+        {"upsample_x": 2, "upsample_beyond_m": -1.0},
+        {"upsample_beyond_m": 15.0},  # no widening for it to restrict
     ],
 )
 def test_bad_configuration_is_refused_at_construction(setting: dict[str, object]) -> None:

@@ -45,8 +45,11 @@ class StereoDepth:
             raise ConfigError("stereo.num_disparities must be >= 0 (0 = from calibration), decimation >= 1")
         if stereo.keypoints < 0 or stereo.keypoint_cell_px < 1:
             raise ConfigError("stereo.keypoints must be >= 0 (0 = off), keypoint_cell_px >= 1")
-        if stereo.upsample_beyond_m < 0:
-            raise ConfigError(f"stereo.upsample_beyond_m must be >= 0, not {stereo.upsample_beyond_m}")
+        if stereo.upsample_beyond_m < 0 or (stereo.upsample_beyond_m > 0 and stereo.upsample_x < 2):
+            raise ConfigError(
+                f"stereo.upsample_beyond_m must be >= 0, and over 0 only with stereo.upsample_x 2 or more "
+                f"(it says which rows are widened), not {stereo.upsample_beyond_m} with {stereo.upsample_x}"
+            )
         self.cfg = stereo
         seen = volume.seen()  # and the lookahead beyond it
         self.seen_volume = seen
