@@ -17,7 +17,7 @@ from common.evaluation.stereo import d1_frame
 from common.geometry import camera_to_vehicle
 from common.messages import Calibration, StereoFrame
 from services.stereo_depth import StereoDepth
-from services.stereo_depth.far_band import far_reach_px, far_rows, merged
+from services.stereo_depth.far_band import FarRegion, far_reach_px, far_region, merged
 from services.stereo_depth.matcher import widened
 from services.stereo_depth.occlusion import fill_hidden
 
@@ -143,18 +143,24 @@ def test_a_pair_matched_twice_as_wide_fattens_a_thin_pole_less_in_the_left_image
         assert kept[name] >= 0.98 * kept["as is"], kept
 
 
-def test_only_the_far_rows_are_matched_again_and_the_rest_is_as_unwidened() -> None:
-    """Beyond 8 m the volume projects onto rows 45-177 of this rig; below them the disparity is the
-    unwidened matcher's to the bit, and within them a hole the widened pass leaves keeps its value."""
-    as_is, far = _core(), _core(upsample_x=2, upsample_beyond_m=8.0)
+@pytest.mark.parametrize("y_half", [8.2, 2.0])
+def test_only_where_the_far_field_is_seen_is_matched_again_and_the_rest_is_as_unwidened(y_half: float) -> None:
+    """Beyond 8 m the volume projects onto rows 45-177 of this rig, and with 2 m either side of the
+    road onto columns 85-235 (with 8.2 m, all of them); outside that box the disparity is the
+    unwidened matcher's to the bit, and inside it the widened pass leaves no fewer values."""
+    sets = ["stereo.contrast_span=0", f"volume.y_half={y_half}"]
+    as_is = StereoDepth.from_config(load_config(sets=sets))
+    far = StereoDepth.from_config(load_config(sets=[*sets, "stereo.upsample_x=2", "stereo.upsample_beyond_m=8"]))
     frame = _pole_scene(0)
     plain, banded = as_is.process(frame)[1].disparity, far.process(frame)[1].disparity
-    first, last = far_rows(frame.calib, Config().volume.seen(), 8.0)
-    assert (first, last) == (45, 178)
-    assert np.array_equal(plain[last:], banded[last:], equal_nan=True)
-    assert np.array_equal(plain[:first], banded[:first], equal_nan=True)
-    assert not np.array_equal(plain[first:last], banded[first:last], equal_nan=True)
-    assert np.isfinite(banded[first:last]).mean() >= np.isfinite(plain[first:last]).mean() - 0.005
+    box = far_region(frame.calib, load_config(sets=sets).volume.seen(), 8.0)
+    assert box == FarRegion(45, 178, *((0, WIDTH) if y_half > 2 else (85, 236)), 32)
+    outside = np.ones(plain.shape, dtype=bool)
+    outside[box.top : box.bottom, box.left : box.right] = False
+    assert np.array_equal(plain[outside], banded[outside], equal_nan=True)
+    inside = ~outside
+    assert not np.array_equal(plain[inside], banded[inside], equal_nan=True)
+    assert np.isfinite(banded[inside]).mean() >= np.isfinite(plain[inside]).mean() - 0.005
 
 
 def test_a_widened_value_is_taken_short_of_its_reach_and_a_hole_keeps_an_unwidened_one_not_in_front() -> None:
@@ -163,7 +169,7 @@ def test_a_widened_value_is_taken_short_of_its_reach_and_a_hole_keeps_an_unwiden
     before = np.array([10, 10, nan, 30, 20, 11, 14, 10, 10, 10, 10, 10, 10, 10, 25, 25, 25, 25, 25, 25, 25, 25, 25, 25])
     wide = np.array([11, nan, 12, 12, 29] + [nan] * 19)
     # a reach of 32 px trusts widened values under 28 where the unwidened pass does not say 28 or more
-    out = merged(np.vstack([before, before]).astype(np.float32), wide[None].astype(np.float32), 1, 32)
+    out = merged(np.vstack([before, before]).astype(np.float32), wide[None].astype(np.float32), 1, 0, 32)
     assert np.array_equal(out[0], before.astype(np.float32), equal_nan=True)  # a row outside the band
     expected = [11, 10, 12, 30, nan, 11, nan, 10, 10, 10, 10, 10, 10, 10, 25, 25, 25, 25, 25, 25, 25, 25, 25, 25]
     # kept: a hole's value no nearer than the widened values beside it (11, 12) plus a pixel, or with none

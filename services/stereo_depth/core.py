@@ -19,7 +19,7 @@ import numpy as np
 from common.config import Config, StereoConfig, VolumeConfig
 from common.errors import ConfigError
 from common.messages import Calibration, Disparity, PointCloud, StereoFrame
-from services.stereo_depth.far_band import far_reach_px, far_rows
+from services.stereo_depth.far_band import far_region
 from services.stereo_depth.keypoints import KeypointParams, Keypoints, KeypointTracker
 from services.stereo_depth.matcher import MultiResolutionMatcher
 from services.stereo_depth.ramps import RampFilter
@@ -128,8 +128,7 @@ class StereoDepth:
         disparities = self.search_range(calib)
         far = None
         if self.cfg.upsample_x > 1 and self.cfg.upsample_beyond_m > 0:
-            beyond = self.cfg.upsample_beyond_m
-            far = (*far_rows(calib, self.seen_volume, beyond), far_reach_px(calib, beyond))
+            far = far_region(calib, self.seen_volume, self.cfg.upsample_beyond_m)
         key = (disparities, *(far or ()))
         if key not in self._matchers:
             if len(self._matchers) >= MAX_MATCHERS:  # a stream of ever-new calibrations must not grow memory

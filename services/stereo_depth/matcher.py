@@ -24,7 +24,7 @@ from common.config import StereoConfig
 from common.errors import ConfigError
 from services.stereo_depth.consistency import left_right_check, textured, upsample, within_neighbours
 from services.stereo_depth.exposure import contrast_gain
-from services.stereo_depth.far_band import MARGIN_ROWS, merged
+from services.stereo_depth.far_band import MARGIN_PX, FarRegion, merged
 from services.stereo_depth.occlusion import fill_hidden
 from services.stereo_depth.sgbm import DisparityMap, Image, SgbmParams, SgbmPass, round_up_16
 from services.stereo_depth.sky import sky_mask
@@ -71,12 +71,10 @@ def _cubic(t: float, a: float = -0.75) -> float:
 
 
 class FarPass(NamedTuple):
-    """A widened matcher for the rows ``first`` to ``last`` (far_band.py), searching ``reach_px``."""
+    """A widened matcher for where the far field is seen (far_band.py)."""
 
     matcher: MultiResolutionMatcher
-    first: int
-    last: int
-    reach_px: int
+    region: FarRegion
 
 
 class MultiResolutionMatcher:
@@ -115,28 +113,26 @@ class MultiResolutionMatcher:
         if upsample_x < 1:
             raise ConfigError(f"stereo.upsample_x must be 1 or more, not {upsample_x}")
         self.upsample_x = upsample_x
-        #: the far rows matched again widened (``for_range``'s ``far_rows``); None: none
+        #: where the far field is matched again widened (``for_range``'s ``far``); None: nowhere
         self.far: FarPass | None = None
         #: milliseconds of the last ``match`` per step (``STEPS``).
         self.timings_ms: dict[str, float] = {}
 
     @classmethod
     def for_range(
-        cls, cfg: StereoConfig, max_disparity: int, far_rows: tuple[int, int, int] | None = None
+        cls, cfg: StereoConfig, max_disparity: int, far: FarRegion | None = None
     ) -> MultiResolutionMatcher:
         """Matchers for a search range of ``max_disparity`` full-resolution pixels (a multiple of 16).
 
         With ``cfg.upsample_x`` over 1 every pass works on images that many times wider, so the range
-        and every setting in pixels are in the widened image's pixels. Given ``far_rows`` (first row,
-        past the last, and the disparities to search there; far_band.py), only those rows are
-        matched widened, after the whole pair is matched as it is.
+        and every setting in pixels are in the widened image's pixels. Given ``far`` (where the far
+        field is seen, and the disparities to search there; far_band.py), only that part is matched
+        widened, after the whole pair is matched as it is.
         """
-        if far_rows is not None and cfg.upsample_x > 1:
+        if far is not None and cfg.upsample_x > 1:
             whole = cls.for_range(dataclasses.replace(cfg, upsample_x=1), max_disparity)
-            first, last, reach_px = far_rows
-            reach_px = min(reach_px, max_disparity)
-            if last > first:
-                whole.far = FarPass(cls.for_range(cfg, reach_px), first, last, reach_px)
+            far = far._replace(reach_px=min(far.reach_px, max_disparity))
+            whole.far = FarPass(cls.for_range(cfg, far.reach_px), far)
             return whole
         wide = max(cfg.upsample_x, 1)  # (under 1 is refused by the constructor)
         max_disparity *= wide
@@ -196,7 +192,7 @@ class MultiResolutionMatcher:
         fused = self._unfilled(left, right)
         far = self.far
         if far is not None:
-            fused = self._timed("far_band", lambda: self._with_far_rows(far, fused, left, right))
+            fused = self._timed("far_band", lambda: self._with_far_field(far, fused, left, right))
         fused = self._timed("fill", lambda: self._fill_hidden(fused, left))
         return self._timed("sky", lambda: self._drop_sky(fused, left, left_rgb))
 
@@ -212,12 +208,19 @@ class MultiResolutionMatcher:
         return fused
 
     @staticmethod
-    def _with_far_rows(far: FarPass, disparity: DisparityMap, left: Image, right: Image) -> DisparityMap:
-        """The far rows matched widened (``MARGIN_ROWS`` more each side for SGM's vertical paths), merged in."""
+    def _with_far_field(far: FarPass, disparity: DisparityMap, left: Image, right: Image) -> DisparityMap:
+        """The far field matched widened, merged in. Its crop reaches ``MARGIN_PX`` further up, down
+        and right for SGM's paths, and the search range further left, so each kept pixel has its whole
+        range; all of that is thrown away."""
         far.matcher.timings_ms = dict.fromkeys(STEPS, 0.0)  # (its own steps, within this one's "far_band")
-        top, bottom = max(0, far.first - MARGIN_ROWS), min(left.shape[0], far.last + MARGIN_ROWS)
-        rows = far.matcher._unfilled(left[top:bottom], right[top:bottom])
-        return merged(disparity, rows[far.first - top : far.last - top], far.first, far.reach_px)
+        box = far.region
+        height, width = left.shape[:2]
+        top, bottom = max(0, box.top - MARGIN_PX), min(height, box.bottom + MARGIN_PX)
+        start, end = max(0, box.left - box.reach_px), min(width, box.right + MARGIN_PX)
+        crop = (slice(top, bottom), slice(start, end))
+        found = far.matcher._unfilled(left[crop], right[crop])
+        kept = found[box.top - top : box.bottom - top, box.left - start : box.right - start]
+        return merged(disparity, kept, box.top, box.left, box.reach_px)
 
     def _matched(self, left: Image, right: Image, original_left: Image, original_right: Image) -> DisparityMap:
         """Both SGM passes, checked and fused: the full-resolution one on ``left`` and ``right``, the
