@@ -92,7 +92,7 @@ class StereoConfig:
     # the synthetic camera: urban one-cluster 89.4 -> 93.0 %, at 1.86 x the stage's time; on KITTI raw density
     # 91.1 -> 86.9 %, so 1 (docs/results/voxel.md, "Session 64")
     upsample_x: int = 1
-    # with upsample_x > 1: 0 widens the whole pair; over 0, only the rows where the volume beyond this range
+    # with upsample_x > 1: 0 widens the whole pair; over 0, only the box where the volume beyond this range
     # (m) projects, the unwidened disparity kept in the widened pass's holes (far_band.py; session 65)
     upsample_beyond_m: float = 0.0
     color_matching: bool = False  # False = match grey images (measured better and faster)

@@ -2,8 +2,8 @@
 
 A pixel of disparity is worth range ** 2 / (fx * baseline) metres: 0.9 m at 15 m on the synthetic
 rig, 0.1 m at 5 m. Matching the pair widened (``stereo.upsample_x``) pays where it is worth
-metres, so with ``stereo.upsample_beyond_m`` set only the rows where the volume of interest beyond
-that range projects are widened, over the short range of disparities it needs, and the
+metres, so with ``stereo.upsample_beyond_m`` set only the box of rows and columns where the
+volume of interest beyond that range projects is widened, over the short range of disparities it needs, and the
 unwidened disparity is kept where the widened pass has none, unless it stands in front of the
 widened values beside it. Measured (docs/results/voxel.md,
 "Session 65"): on synthetic urban the widened rows alone give what widening the whole pair gave,

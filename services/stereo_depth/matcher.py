@@ -36,7 +36,7 @@ LR_MODES: tuple[str, ...] = ("coarse", "full", "none")
 #: coarse pixels this close to the fine range's end are trusted over the fine pass.
 NEAR_MARGIN_PX: float = 4.0
 #: what ``match`` times: widening the pair (``upsample_x``), both passes, the check, fills, sub-pixel,
-#: the far rows' widened pass (``upsample_beyond_m``), sky.
+#: the far field's widened pass (``upsample_beyond_m``), sky.
 STEPS: tuple[str, ...] = ("upsample", "sgbm_coarse", "sgbm_fine", "lr_check", "fill", "subpixel", "far_band", "sky")
 #: side of the square over which the texture test averages the grey gradient.
 TEXTURE_WINDOW_PX: int = 9
