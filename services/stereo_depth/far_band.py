@@ -3,12 +3,11 @@
 A pixel of disparity is worth range ** 2 / (fx * baseline) metres: 0.9 m at 15 m on the synthetic
 rig, 0.1 m at 5 m. Matching the pair widened (``stereo.upsample_x``) pays where it is worth
 metres, so with ``stereo.upsample_beyond_m`` set only the box of rows and columns where the
-volume of interest beyond that range projects is widened, over the short range of disparities it needs, and the
-unwidened disparity is kept where the widened pass has none, unless it stands in front of the
-widened values beside it. Measured (docs/results/voxel.md,
-"Session 65"): on synthetic urban the widened rows alone give what widening the whole pair gave,
-and keeping the unwidened values in its holes keeps KITTI raw's density, which widening the whole
-pair lost.
+volume of interest beyond that range projects is widened, over the short range of disparities it
+needs, and the unwidened disparity is kept where the widened pass has none, unless it stands in
+front of the widened values beside it. Measured (docs/results/voxel.md, "Session 65"): on
+synthetic urban the widened far field alone gives what widening the whole pair gave, and keeping
+the unwidened values in its holes keeps KITTI raw's density, which widening the whole pair lost.
 """
 
 from __future__ import annotations
