@@ -163,6 +163,17 @@ def test_only_where_the_far_field_is_seen_is_matched_again_and_the_rest_is_as_un
     assert np.isfinite(banded[inside]).mean() >= np.isfinite(plain[inside]).mean() - 0.005
 
 
+def test_a_dim_pair_is_not_widened_where_the_far_field_is_seen() -> None:
+    """The pole scene's textures span 88 grey levels: with ``contrast_span`` 160 it is a dim pair
+    (exposure.py), whose far field the widened pass would leave sparser, so it is matched as it is."""
+    dim, far = ({"contrast_span": 160.0}, {"upsample_x": 2, "upsample_beyond_m": 5.0})
+    as_is, widened_far = _core(**dim), _core(**dim, **far)
+    frame = _pole_scene(0)
+    plain, kept = as_is.process(frame)[1].disparity, widened_far.process(frame)[1].disparity
+    assert widened_far.step_timings_ms()["far_band"] == 0.0
+    assert np.array_equal(plain, kept, equal_nan=True)
+
+
 def test_a_widened_value_is_taken_short_of_its_reach_and_a_hole_keeps_an_unwidened_one_not_in_front() -> None:
     nan = np.nan
     # columns 0-4 as the widened pass saw them; 5-23 a hole it left, with nothing widened within 8 columns of 14-23

@@ -115,6 +115,8 @@ class MultiResolutionMatcher:
         self.upsample_x = upsample_x
         #: where the far field is matched again widened (``for_range``'s ``far``); None: nowhere
         self.far: FarPass | None = None
+        #: the last pair's contrast gain (exposure.py): over 1, a dim pair
+        self.last_gain = 1.0
         #: milliseconds of the last ``match`` per step (``STEPS``).
         self.timings_ms: dict[str, float] = {}
 
@@ -191,7 +193,9 @@ class MultiResolutionMatcher:
         left, right = self._intensity(left_rgb), self._intensity(right_rgb)
         fused = self._unfilled(left, right)
         far = self.far
-        if far is not None:
+        # not on a dim pair: widened, the dusk scenario's far field lost more values than it mended
+        # (one-cluster 67.2 / 63.8 % against 68.7 / 70.5 on seeds 7 / 8; docs/results/voxel.md, "Session 65")
+        if far is not None and self.last_gain <= 1.0:
             fused = self._timed("far_band", lambda: self._with_far_field(far, fused, left, right))
         fused = self._timed("fill", lambda: self._fill_hidden(fused, left))
         return self._timed("sky", lambda: self._drop_sky(fused, left, left_rgb))
@@ -226,6 +230,7 @@ class MultiResolutionMatcher:
         """Both SGM passes, checked and fused: the full-resolution one on ``left`` and ``right``, the
         half-resolution one on the original pair halved (the same images, unless widened)."""
         gain = contrast_gain(left, self.contrast_span)  # a dim pair: SGM's penalties scaled down (exposure.py)
+        self.last_gain = gain
         for sgbm in (self.fine, self.coarse):
             if sgbm is not None:
                 sgbm.scale_penalties(1.0 / gain)
