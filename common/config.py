@@ -93,7 +93,7 @@ class StereoConfig:
     # 91.1 -> 86.9 %, so 1 (docs/results/voxel.md, "Session 64")
     upsample_x: int = 1
     # with upsample_x > 1: 0 widens the whole pair; over 0, only the box where the volume beyond this range
-    # (m) projects, the unwidened disparity kept in the widened pass's holes (far_band.py; session 65)
+    # (m) projects, the unwidened disparity kept in its holes; a dim pair not at all (far_band.py; session 65)
     upsample_beyond_m: float = 0.0
     color_matching: bool = False  # False = match grey images (measured better and faster)
     fill_left_border: bool = True  # pad on the left so the first columns get a disparity too

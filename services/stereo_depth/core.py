@@ -48,7 +48,7 @@ class StereoDepth:
         if stereo.upsample_beyond_m < 0 or (stereo.upsample_beyond_m > 0 and stereo.upsample_x < 2):
             raise ConfigError(
                 f"stereo.upsample_beyond_m must be >= 0, and over 0 only with stereo.upsample_x 2 or more "
-                f"(it says which rows are widened), not {stereo.upsample_beyond_m} with {stereo.upsample_x}"
+                f"(it says where the pair is widened), not {stereo.upsample_beyond_m} with {stereo.upsample_x}"
             )
         self.cfg = stereo
         seen = volume.seen()  # and the lookahead beyond it
