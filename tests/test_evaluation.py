@@ -467,6 +467,42 @@ def test_why_tells_the_speed_error_object_by_object(tmp_path: Path) -> None:
     assert lines[head + 3].split() == ["1", "car", "10", "2.50", "20.0", "0.50", "0.50"]
 
 
+def test_why_lists_the_moving_objects_never_labelled_and_when_they_were_counted(tmp_path: Path) -> None:
+    """Car 1 labelled; car 3 comes into the volume in the last two frames, car 4 leaves it after the
+    first two, car 5 is in view in frames 5-14 only: each never labelled, told by where it was counted."""
+
+    def four_movers(k: int) -> list[GroundTruthObject]:
+        hidden = {"visible_pixels": 2000, "visible_fraction": 1.0 if 5 <= k <= 14 else 0.1}
+        return [
+            *scene(k),
+            car(3, [136.0 - 5.0 * k, -4.0, 0.75], [-50.0, 0.0, 0.0]),  # 28.0 m ahead at frame 18, 34 at 17
+            car(4, [26.0 + 3.0 * k, -4.0, 0.75], [30.0, 0.0, 0.0]),  # 26, 28, then 30 m ahead
+            car(5, [15.0 + 1.0 * k, 7.0, 0.75], [10.0, 0.0, 0.0], **hidden),
+        ]
+
+    def label_only_1(k: int, obj: GroundTruthObject) -> Obstacle | None:
+        if obj.id == 4:
+            return None
+        return obstacle(obj.id, obj.center, obj.velocity, moving=obj.id == 1)
+
+    path = write_run(tmp_path / "run.mcap", detect=label_only_1, objects=four_movers)
+    run = read_inputs(path)
+    why = breakdown(run, matched_frames(run))
+    assert why.moving_tracks == evaluate_recording(path)["moving_tracks"]["tracks"] == 4
+    assert evaluate_recording(path)["moving_tracks"]["recall"] == pytest.approx(0.25)
+    rows = {oid: (cls, t.counted, t.matched, where) for oid, cls, t, where in why.unlabelled}
+    assert rows == {
+        3: ("car", [18, 19], 2, "last frames"),
+        4: ("car", [0, 1], 0, "first frames"),
+        5: ("car", list(range(5, 15)), 10, "mid-run"),
+    }
+    lines = format_breakdown(why).splitlines()
+    head = lines.index(next(x for x in lines if x.startswith("moving objects never labelled moving (3 of 4)")))
+    assert lines[head + 2].split() == ["3", "car", "2", "18-19", "2", "last", "frames"]
+    assert lines[head + 4].split() == ["5", "car", "10", "5-14", "10", "mid-run"]
+    assert lines[head + 5].strip() == "2 of 3 counted only within 4 frames of the run's start or end"
+
+
 @pytest.mark.parametrize("damage", ["truncated", "not_mcap"])
 def test_corrupt_recording_exits_2_naming_the_file(tmp_path: Path, damage: str) -> None:
     path = write_run(tmp_path / "run.mcap")

@@ -22,6 +22,12 @@ Then the scored truth-frames whose box shares volume with another object's: a sy
 that puts a bin inside a kiosk or rides a cyclist through a pole scores a miss no pipeline could
 avoid, and this says how much of the figures that is.
 
+Then the moving objects never labelled moving, which ``moving_tracks.recall`` counts over every
+frame, warm-up included: when in the run each was counted, and in how many of those frames a
+tracked obstacle matched it. One counted only in a run's first or last few frames (``EDGE_FRAMES``)
+was there for less time than a tracker takes to accept a track and label it (this one's defaults:
+two frames, then three), so no tracker of the kind could have labelled it.
+
 Last, the speed error object by object. The RMSE pools every true moving frame, and on a street a
 few objects hold most of its squared error: a lead car changing lane followed at its rear face, a
 cyclist read through metres of range noise, a track that slid from one object onto another
@@ -38,7 +44,7 @@ import numpy.typing as npt
 
 from common.evaluation.inputs import RunInputs
 from common.evaluation.matching import FrameMatch, TruthView
-from common.evaluation.metrics import WARMUP_FRAMES, grace_ids, scored_class, tally
+from common.evaluation.metrics import WARMUP_FRAMES, MovingTrack, grace_ids, moving_tracks, scored_class, tally
 from common.evaluation.segmentation import box_overlaps, clusters_in_vehicle, clusters_on, truths_share_volume
 from common.messages import OPEN_CLASSES
 
@@ -55,6 +61,11 @@ MISSED_KINDS: tuple[str, ...] = ("own, off centre", "shared", "untouched")
 #: range bands (m, from the vehicle) of the segmentation table: the upper ends of all but the last.
 BANDS_M: tuple[float, ...] = (15.0, 22.0)
 BAND_NAMES: tuple[str, ...] = ("< 15 m", "15-22 m", ">= 22 m")
+#: a moving object counted only within a run's first or last this many frames is told apart: a
+#: track accepted after two frames and labelled moving after three more has no time there.
+EDGE_FRAMES: int = 4
+#: where in the run a never-labelled moving object was counted (``where_in_run``).
+WHERE: tuple[str, ...] = ("first frames", "last frames", "mid-run")
 
 F64 = npt.NDArray[np.float64]
 Row = tuple[str, str, str]  # (object class, outcome, segment); segmentation: (class, band, count)
@@ -70,6 +81,8 @@ class Breakdown:
     missed: Counter[tuple[str, str]] = field(default_factory=Counter)  # (class, MISSED_KINDS) of the missed ones
     inside: Counter[Row] = field(default_factory=Counter)  # (motion, class, outcome) of those sharing volume
     speed: dict[tuple[int, str], list[float]] = field(default_factory=dict)  # (id, class): its speed errors (m/s)
+    moving_tracks: int = 0  # moving objects counted in some frame, as ``moving_tracks.tracks``
+    unlabelled: list[tuple[int, str, MovingTrack, str]] = field(default_factory=list)  # (id, class, track, WHERE)
 
     def total(self, motion: str, outcome: str | None = None) -> int:
         rows: Counter[Row] = getattr(self, motion)
@@ -108,6 +121,15 @@ def missed_kind(truth: TruthView, boxes: Boxes, counted: list[TruthView]) -> str
     return MISSED_KINDS[0] if own else MISSED_KINDS[1]
 
 
+def where_in_run(counted: list[int], first: int, last: int) -> str:
+    """Whether frames ``counted`` all lie within ``EDGE_FRAMES`` of the run's first or last frame, or not."""
+    if max(counted) < first + EDGE_FRAMES:
+        return WHERE[0]
+    if min(counted) > last - EDGE_FRAMES:
+        return WHERE[1]
+    return WHERE[2]
+
+
 def breakdown(run: RunInputs, frames: list[FrameMatch], warmup: int = WARMUP_FRAMES) -> Breakdown:
     """Every moving and stationary truth-frame scored by the figures, and every counted object-frame, in its row."""
     cls_of = {o.id: o.cls for gt in run.truth.values() for o in gt.objects}
@@ -142,6 +164,12 @@ def breakdown(run: RunInputs, frames: list[FrameMatch], warmup: int = WARMUP_FRA
             getattr(out, motion)[(cls, outcome, segment_of(truth, boxes))] += 1
             if cls not in OPEN_CLASSES and any(u is not truth and truths_share_volume(truth, u) for u in solid):
                 out.inside[(motion, cls, outcome)] += 1
+    tracks = moving_tracks(frames)
+    out.moving_tracks = len(tracks)
+    for oid, track in sorted(tracks.items()):
+        if track.labelled is None:
+            where = where_in_run(track.counted, frames[0].frame_id, frames[-1].frame_id)
+            out.unlabelled.append((oid, cls_of.get(oid, "?"), track, where))
     pairs = tally(frames, warmup)  # the speed figure's own pairs, so the rows add up to its RMSE
     for oid, error in zip(pairs.speed_truths, pairs.speed_errors, strict=True):
         out.speed.setdefault((oid, cls_of.get(oid, "?")), []).append(error)
@@ -165,9 +193,26 @@ def format_breakdown(b: Breakdown) -> str:
         lines.extend(_missed_lines(b.missed))
     if b.inside:
         lines.extend(_inside_lines(b.inside))
+    if b.unlabelled:
+        lines.extend(_unlabelled_lines(b.unlabelled, b.moving_tracks))
     if b.speed:
         lines.extend(_speed_lines(b.speed))
     return "\n".join(lines)
+
+
+def _unlabelled_lines(rows: list[tuple[int, str, MovingTrack, str]], tracks: int) -> list[str]:
+    """Per moving object never labelled moving: counted frames, their span, frames matched, where in the run."""
+    lines = [
+        f"moving objects never labelled moving ({len(rows)} of {tracks}): frames counted, the first and last, "
+        "frames a tracked obstacle matched it, where in the run",
+        f"  {'id':>6} {'class':<12} {'counted':>7} {'frames':>9} {'matched':>7}  where",
+    ]
+    for oid, cls, track, where in rows:
+        span = f"{track.counted[0]}-{track.counted[-1]}"
+        lines.append(f"  {oid:>6} {cls:<12} {len(track.counted):>7} {span:>9} {track.matched:>7}  {where}")
+    edge = sum(where != WHERE[2] for *_, where in rows)
+    lines.append(f"  {edge} of {len(rows)} counted only within {EDGE_FRAMES} frames of the run's start or end")
+    return lines
 
 
 #: objects the speed table lists, largest squared error first; the rest are summed in one line.

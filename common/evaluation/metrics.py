@@ -171,21 +171,38 @@ def _labelled_moving(frame: FrameMatch) -> dict[int, int]:
     return {frame.truths[t].id: frame.detections[d].id for d, t in frame.pairs.items() if frame.detections[d].moving}
 
 
-def moving_track_figures(frames: list[FrameMatch]) -> dict[str, float | int | None]:
-    """Moving ground-truth tracks: share ever labelled moving, and frames until first labelled."""
-    first_counted: dict[int, int] = {}
-    first_labelled: dict[int, int] = {}
+@dataclass
+class MovingTrack:
+    """A moving ground-truth track as the per-track figure sees it (every frame, no warm-up)."""
+
+    counted: list[int] = field(default_factory=list)  # frames it was counted in
+    labelled: int | None = None  # the first of them a detection labelled moving matched it in
+    matched: int = 0  # how many of them any scored detection matched it in
+
+
+def moving_tracks(frames: list[FrameMatch]) -> dict[int, MovingTrack]:
+    """Each moving ground-truth track by id: when it was counted, first labelled moving, and matched."""
+    tracks: dict[int, MovingTrack] = {}
     for frame in frames:
         labelled = _labelled_moving(frame)
+        matched = {frame.truths[t].id for t in frame.pairs.values()}
         for truth in frame.truths:
             if truth.counted and truth.motion == "moving":
-                first_counted.setdefault(truth.id, frame.frame_id)
-                if truth.id in labelled:
-                    first_labelled.setdefault(truth.id, frame.frame_id)
-    latencies = [first_labelled[i] - first_counted[i] for i in first_labelled]
+                track = tracks.setdefault(truth.id, MovingTrack())
+                track.counted.append(frame.frame_id)
+                track.matched += truth.id in matched
+                if truth.id in labelled and track.labelled is None:
+                    track.labelled = frame.frame_id
+    return tracks
+
+
+def moving_track_figures(frames: list[FrameMatch]) -> dict[str, float | int | None]:
+    """Moving ground-truth tracks: share ever labelled moving, and frames until first labelled."""
+    tracks = moving_tracks(frames)
+    latencies = [t.labelled - t.counted[0] for t in tracks.values() if t.labelled is not None]
     return {
-        "tracks": len(first_counted),
-        "recall": share(len(first_labelled), len(first_counted)),
+        "tracks": len(tracks),
+        "recall": share(len(latencies), len(tracks)),
         "median_latency_frames": float(np.median(latencies)) if latencies else None,
     }
 
