@@ -25,8 +25,9 @@ avoid, and this says how much of the figures that is.
 Then the moving objects never labelled moving, which ``moving_tracks.recall`` counts over every
 frame, warm-up included: when in the run each was counted, and in how many of those frames a
 tracked obstacle matched it. One counted only in a run's first or last few frames (``EDGE_FRAMES``)
-was there for less time than a tracker takes to accept a track and label it (this one's defaults:
-two frames, then three), so no tracker of the kind could have labelled it.
+left little time: a track born in its first counted frame is accepted in its second and may be
+labelled moving from its third (this tracker's defaults), two frames at most, and only if its speed
+is sure by then.
 
 Last, the speed error object by object. The RMSE pools every true moving frame, and on a street a
 few objects hold most of its squared error: a lead car changing lane followed at its rear face, a
@@ -61,8 +62,8 @@ MISSED_KINDS: tuple[str, ...] = ("own, off centre", "shared", "untouched")
 #: range bands (m, from the vehicle) of the segmentation table: the upper ends of all but the last.
 BANDS_M: tuple[float, ...] = (15.0, 22.0)
 BAND_NAMES: tuple[str, ...] = ("< 15 m", "15-22 m", ">= 22 m")
-#: a moving object counted only within a run's first or last this many frames is told apart: a
-#: track accepted after two frames and labelled moving after three more has no time there.
+#: a moving object counted only within a run's first or last this many frames is told apart: a track
+#: born in its first counted frame could be labelled moving in two of them at most (from its third).
 EDGE_FRAMES: int = 4
 #: where in the run a never-labelled moving object was counted (``where_in_run``).
 WHERE: tuple[str, ...] = ("first frames", "last frames", "mid-run")
