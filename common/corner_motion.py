@@ -60,6 +60,31 @@ class CornerVelocity:
     across_sigma: NDArray
 
 
+@dataclass(frozen=True)
+class CornerLead:
+    """When a piece's corners' velocity is carried from the middle of their lines to this frame
+    (config ``tracker.corner_lead_*``): by the median acceleration of a parabola through each one's
+    positions, where that median is ``sigmas`` of its scatter sure, on a piece whose corners already
+    read ``min_mps`` or more, from the corners with ``samples`` positions or more.
+
+    A line through 0.8 s of positions gives the velocity 0.35 s ago. A car changing lane
+    accelerates sideways 1 m/s^2 for a second and more, and every urban run's lead car was read
+    0.6 m/s short sideways to the end of its lane change, the largest single speed error on every
+    run (docs/results/tracking.md, "Session 66"). Only a piece already moving briskly is carried: on
+    slower ones (a walker setting off, a standing post's jittering corners) the parabolas' scatter
+    passed for acceleration and added false moving frames.
+    """
+
+    sigmas: float = 0.0  # 0: never carried
+    min_mps: float = 0.0
+    samples: int = HISTORY
+
+
+NO_LEAD = CornerLead()
+#: fewest corners with ``CornerLead.samples`` positions whose median acceleration a piece is carried by.
+LEAD_MIN_CORNERS: int = 4
+
+
 class CornerHistory:
     """Each followed corner's last ``HISTORY`` world positions (x, y) and times, by id.
 
@@ -278,13 +303,14 @@ def _fit_lines(fit: NDArray, rows: NDArray) -> tuple[NDArray, NDArray]:
 
 def corner_velocity(
     history: CornerHistory, voxels: NDArray, counts: NDArray, slot: NDArray, pieces: int, edge: float, min_samples: int,
-    eye: NDArray, across_std_m: float = 0.0,
+    eye: NDArray, across_std_m: float = 0.0, lead: CornerLead = NO_LEAD,
 ) -> CornerVelocity:
     """Per piece (``0 .. pieces - 1``): its corners (those in its voxels this frame) and their median velocity.
 
     ``voxels`` are clusters' voxels in a row (anchor.py's ``Footprint``), ``counts`` how many each
     cluster has and ``slot`` which piece each cluster is (-1: none): the tracker's observed clusters
-    are stacked once a frame for their anchors, and only the associated ones are pieces.
+    are stacked once a frame for their anchors, and only the associated ones are pieces. ``lead``:
+    when a piece's corners' velocity is carried to this frame (``CornerLead``).
     """
     owner = np.repeat(np.asarray(slot, dtype=np.int64), counts)
     if pieces == 0 or len(owner) == 0 or len(history.ids) == 0:
@@ -293,7 +319,8 @@ def corner_velocity(
     eye = np.asarray(eye, dtype=np.float64)
     velocity, spread, stereo, count, across, across_spread, across_factor = _piece_velocities(
         np.ascontiguousarray(voxels), owner, history.now, history.n, history.missed, max(min_samples, 2), edge,
-        history.fit, history.std, pieces, eye, history.grid,
+        history.fit, history.std, pieces, eye, history.grid, history.xy, history.t, history.w,
+        float(lead.sigmas), float(lead.min_mps), int(lead.samples),
     )  # fmt: skip
     m = np.maximum(count, 1).astype(np.float64)
     shrink = np.sqrt(SHARED + (1.0 - SHARED) / m)
@@ -363,7 +390,8 @@ def _select(a: NDArray, m: int, k: int) -> float:
 @numba.njit(cache=True)
 def _piece_velocities(
     voxels: NDArray, owner: NDArray, now: NDArray, n: NDArray, missed: NDArray, min_n: int, edge: float,
-    fit: NDArray, std: NDArray, pieces: int, eye: NDArray, grid: NDArray,
+    fit: NDArray, std: NDArray, pieces: int, eye: NDArray, grid: NDArray, xy: NDArray, t: NDArray, w: NDArray,
+    lead_sigmas: float, lead_min_mps: float, lead_samples: int,
 ) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, NDArray, NDArray]:  # fmt: skip
     """Per piece, from the corners seen this frame with ``min_n`` positions or more that lie in one of
     its voxels (``voxels`` in a row, ``owner`` says whose; -1: nobody's; of two, the lower): the
@@ -372,7 +400,9 @@ def _piece_velocities(
     ``eye`` (signed), the median distance from it, and the median factor that turns a position's
     doubt into their lines'.
 
-    Which piece each corner is on comes from corner_owners.py (``grid``: its scratch).
+    Which piece each corner is on comes from corner_owners.py (``grid``: its scratch). With
+    ``lead_sigmas`` over 0 a piece's lines are first carried to this frame (``CornerLead``, ``_carry``):
+    ``xy``, ``t`` and ``w`` are the history's rings.
     """
     whose, count = owners(voxels, owner, now, n, missed, min_n, edge, pieces, grid)
     start = np.zeros(pieces + 1, np.int64)
@@ -383,6 +413,8 @@ def _piece_velocities(
             members[fill[whose[c]]] = c
             fill[whose[c]] += 1
     slope, factor = _fit_lines(fit, members)
+    if lead_sigmas > 0.0:
+        _carry(slope, members, start, xy, t, n, w, lead_sigmas, lead_min_mps, lead_samples)
     doubt, off = np.empty(members.shape[0]), np.empty(members.shape[0])
     side = np.empty(members.shape[0])  # each corner's speed across its line of sight from the eye
     for i in range(members.shape[0]):
@@ -411,3 +443,68 @@ def _piece_velocities(
         across_spread[p] = _median(off[a:b], scratch)
         across_factor[p] = _median(factor[a:b], scratch)
     return velocity, spread, stereo, count, across, across_spread, across_factor
+
+
+@numba.njit(cache=True)
+def _carry(
+    slope: NDArray, members: NDArray, start: NDArray, xy: NDArray, t: NDArray, n: NDArray, w: NDArray,
+    sigmas: float, min_mps: float, samples: int,
+) -> None:  # fmt: skip
+    """Each piece's lines (``slope``, by member) carried to their last position's time by the median of
+    its corners' accelerations, axis by axis, where it is ``sigmas`` of its scatter (MAD) sure, on a
+    piece whose median velocity is ``min_mps`` or more (``CornerLead``)."""
+    m = members.shape[0]
+    acc, lead, which = np.empty((m, 2)), np.empty(m), np.empty(m, np.int64)
+    scratch, values = np.empty(max(1, m)), np.empty(max(1, m))
+    for p in range(start.shape[0] - 1):
+        a, b = start[p], start[p + 1]
+        if b - a < LEAD_MIN_CORNERS:
+            continue
+        if np.hypot(_median(slope[a:b, 0], scratch), _median(slope[a:b, 1], scratch)) < min_mps:
+            continue
+        k = 0
+        for i in range(a, b):
+            c = members[i]
+            if n[c] >= samples:
+                acc[k, 0], acc[k, 1], lead[k] = _acceleration(xy, t, n[c], w[c], c)
+                which[k] = i
+                k += 1
+        if k < LEAD_MIN_CORNERS:
+            continue
+        for axis in range(2):
+            median = _median(acc[:k, axis], scratch)
+            for q in range(k):
+                values[q] = abs(acc[q, axis] - median)
+            if abs(median) > sigmas * MAD_SIGMA * _median(values[:k], scratch) / np.sqrt(k):
+                for q in range(k):
+                    slope[which[q], axis] += median * lead[q]
+
+
+@numba.njit(cache=True)
+def _acceleration(xy: NDArray, t: NDArray, n: int, w: int, r: int) -> tuple[float, float, float]:
+    """Row ``r``'s acceleration (x, y) from the parabola through its last ``n`` positions, and how far
+    (s) the velocity at its last position lies past its line's: the parabola's slope there is the
+    line's plus acceleration times that. The parabola's square term is taken orthogonal to the line's
+    terms, so the line (``_line``) stays as fitted."""
+    t_mean = 0.0
+    for q in range(w - n, w):
+        t_mean += t[r, q % HISTORY]
+    t_mean /= n
+    s2 = s3 = 0.0
+    for q in range(w - n, w):
+        d = t[r, q % HISTORY] - t_mean
+        s2 += d * d
+        s3 += d * d * d
+    s2 = max(s2, 1e-12)
+    mean2, skew = s2 / n, s3 / s2  # the square term less its projections on the constant and the line
+    ss = sx = sy = 0.0
+    for q in range(w - n, w):
+        k = q % HISTORY
+        d = t[r, k] - t_mean
+        e = d * d - mean2 - skew * d
+        ss += e * e
+        sx += e * xy[r, k, 0]
+        sy += e * xy[r, k, 1]
+    ss = max(ss, 1e-12)
+    last = t[r, (w - 1) % HISTORY] - t_mean
+    return 2.0 * sx / ss, 2.0 * sy / ss, last - 0.5 * skew

@@ -12,7 +12,9 @@ from common.corner_motion import (
     HISTORY,
     MAX_GAP,
     CornerHistory,
+    CornerLead,
     CornerVelocity,
+    _acceleration,
     _fit_lines,
     _median,
     corner_velocity,
@@ -193,6 +195,58 @@ def test_a_clusters_corners_outvote_a_standing_neighbours_merged_into_it() -> No
     np.testing.assert_allclose(found.velocity[0], [1.5, 0.0], atol=1e-6)
     np.testing.assert_allclose(found.velocity[1], [0.0, 0.0], atol=1e-6)
     assert np.all(found.sigma > 0.0) and np.all(np.isfinite(found.sigma))
+
+
+def _accelerating(velocity: tuple[float, float], accel: tuple[float, float], seed: int) -> CornerHistory:
+    """Eight corners on a car's rear, 15 m ahead in the last of nine frames, at ``velocity`` then and
+    speeding up by ``accel`` (m/s^2) all along; each position 0.02 m off (a corner followed to a
+    fraction of a pixel at 15 m; its range doubt is given as 0.05 m)."""
+    rng = np.random.default_rng(seed)
+    end = np.column_stack([np.full(8, 15.0), np.linspace(-0.8, 0.8, 8), np.linspace(0.4, 1.4, 8)])
+    history = CornerHistory()
+    for k in range(HISTORY + 1):
+        time, ago = PERIOD_S * k, PERIOD_S * (k - HISTORY)
+        xyz = end + np.array([*velocity, 0.0]) * ago + 0.5 * np.array([*accel, 0.0]) * ago**2
+        xyz[:, 0:2] += rng.normal(0.0, 0.02, (8, 2))
+        history.update(np.arange(8), xyz, np.full(8, 0.05), time, epoch=0)
+    return history
+
+
+def test_a_parabolas_acceleration_and_the_lead_past_its_line_are_exact_with_a_frame_missing() -> None:
+    # no noise: x = 2 t^2 (4 m/s^2), y = -t^2 + 3 t; frames 0-8 but 3, so the times are not symmetric
+    history = CornerHistory()
+    for k in [0, 1, 2, 4, 5, 6, 7, 8]:
+        time = PERIOD_S * k
+        history.update(np.array([0]), np.array([[2.0 * time**2, -(time**2) + 3.0 * time, 1.0]]), np.array([0.05]),
+                       time, epoch=0)  # fmt: skip
+    ax, ay, lead = _acceleration(history.xy, history.t, int(history.n[0]), int(history.w[0]), 0)
+    assert (ax, ay) == pytest.approx((4.0, -2.0), abs=1e-9)
+    # the line's slope plus acceleration times the lead is the parabola's slope at the last time, 0.8 s
+    line = _fit_lines(history.fit, np.array([0]))[0][0]
+    np.testing.assert_allclose(line + np.array([ax, ay]) * lead, [4.0 * 0.8, -2.0 * 0.8 + 3.0], atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_car_changing_lane_is_read_at_this_frames_pace_and_a_walker_setting_off_is_not_carried(seed: int) -> None:
+    car = of_voxels(box_voxels((14.75, -1.0, 0.0), (15.5, 1.0, 1.5)))
+    stacked = footprint([car])
+    lead = CornerLead(sigmas=3.0, min_mps=2.0, samples=6)
+
+    def seen(history: CornerHistory, lead: CornerLead) -> np.ndarray:
+        found = corner_velocity(history, stacked.voxels, stacked.counts, np.arange(1), 1, EDGE, 3, np.zeros(2),
+                                0.05, lead)  # fmt: skip
+        return found.velocity[0]
+
+    # 10 m/s ahead, sideways 1.5 m/s now and speeding up by 1 m/s^2: 1.15 at the middle of the last 8 frames
+    turning = _accelerating((10.0, 1.5), (0.0, 1.0), seed)
+    assert seen(turning, lead)[1] == pytest.approx(1.5, abs=0.12)
+    assert seen(turning, CornerLead())[1] == pytest.approx(1.15, abs=0.12)
+    # steady, the parabolas' scatter seldom passes for an acceleration, and then carries little
+    steady = _accelerating((10.0, 1.5), (0.0, 0.0), seed)
+    np.testing.assert_allclose(seen(steady, lead), [10.0, 1.5], atol=0.15)
+    # a walker setting off (1.3 m/s now, 0.95 by the line) is slower than the lead's 2 m/s: not carried
+    walker = _accelerating((1.3, 0.0), (1.0, 0.0), seed)
+    np.testing.assert_allclose(seen(walker, lead), seen(walker, CornerLead()), atol=1e-12)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

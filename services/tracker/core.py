@@ -39,7 +39,7 @@ import numpy as np
 import numpy.typing as npt
 
 from common.config import Config, VolumeConfig
-from common.corner_motion import CornerHistory
+from common.corner_motion import CornerHistory, CornerLead
 from common.messages import Cluster, Clusters, EgoMotion, Obstacles
 from services.tracker import kalman, motion_window
 from services.tracker.anchor import Footprint
@@ -246,6 +246,7 @@ class Tracker:
                 t.corner_blend_count,
                 t.corner_across_std_m,
                 t.corner_restart_count,
+                CornerLead(t.corner_lead_sigmas, t.corner_lead_min_mps, t.corner_lead_samples),
             ),
         )
 

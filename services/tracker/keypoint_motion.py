@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from common.corner_motion import CornerHistory, corner_velocity
+from common.corner_motion import NO_LEAD, CornerHistory, CornerLead, corner_velocity
 from services.tracker import kalman
 from services.tracker.anchor import Footprint
 from services.tracker.left_behind import restart_from_rest
@@ -45,6 +45,7 @@ class CornerRule:
     blend_count: int = 0  # this many or more are blended into a moving track's reported velocity; 0: min_count
     across_std_m: float = 0.0  # a corner's position doubt across the line of sight (m); 0: not judged across
     restart_count: int = 0  # this many or more, beyond a revived standing ghost's filter's gate, restart it; 0: never
+    lead: CornerLead = NO_LEAD  # when their velocity is carried to this frame by their acceleration
 
 
 NO_CORNERS = CornerRule()
@@ -69,8 +70,9 @@ def track_corners(
     slot = np.full(len(stacked.counts), -1, dtype=np.int64)
     slot[cols] = np.arange(len(cols))
     c = corner_velocity(
-        history, stacked.voxels, stacked.counts, slot, len(rows), edge, rule.samples, eye, rule.across_std_m
-    )
+        history, stacked.voxels, stacked.counts, slot, len(rows), edge, rule.samples, eye, rule.across_std_m,
+        rule.lead,
+    )  # fmt: skip
     t.corner_velocity[rows], t.corner_sigma[rows], t.corner_count[rows] = c.velocity, c.sigma, c.count
     t.corner_across[rows], t.corner_across_sigma[rows] = c.across, c.across_sigma
 
