@@ -300,7 +300,7 @@ class TrackerConfig:
     corner_restart_count: int = 4  # a standing ghost found again with this many beyond its filter's gate restarts
     corner_across_std_m: float = 0.05  # a corner's place across the line of sight (m; 0.03, 0.1 measured); 0: off
     # a piece's corners' velocity carried from their lines' middle to this frame by their median acceleration
-    # (common/corner_motion.py, CornerLead) where it is this many sigmas sure (2, 4 alike; 0: off) ...
+    # (common/corner_lead.py) where it is this many sigmas sure (2, 4 alike; 0: off) ...
     corner_lead_sigmas: float = 3.0
     corner_lead_min_mps: float = 2.0  # ... on a piece whose corners read this or more (1.0: more false frames)
     corner_lead_samples: int = 6  # ... from the corners followed this many frames (5, 7 alike)

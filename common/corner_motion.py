@@ -26,7 +26,9 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from common.corner_lead import NO_LEAD, CornerLead, carry
 from common.corner_owners import GRID_CELLS, owners
+from common.fast_median import MAD_SIGMA, median
 
 NDArray = npt.NDArray[Any]
 
@@ -38,8 +40,6 @@ FIT: int = 6
 MAX_GAP: int = 2
 #: the share of a corner's range error the other corners on the same object have too.
 SHARED: float = 0.25
-#: scale of the median absolute deviation to a normal distribution's sigma.
-MAD_SIGMA: float = 1.4826
 #: a corner whose new position lies further off the line through its last three or more than this
 #: many of its range's sigmas slid onto another surface: its history starts again there (0: never).
 #: KLT follows a walker's edge onto the walker two metres behind him as they pass, and the line
@@ -58,31 +58,6 @@ class CornerVelocity:
     count: NDArray
     across: NDArray
     across_sigma: NDArray
-
-
-@dataclass(frozen=True)
-class CornerLead:
-    """When a piece's corners' velocity is carried from the middle of their lines to this frame
-    (config ``tracker.corner_lead_*``): by the median acceleration of a parabola through each one's
-    positions, where that median is ``sigmas`` of its scatter sure, on a piece whose corners already
-    read ``min_mps`` or more, from the corners with ``samples`` positions or more.
-
-    A line through 0.8 s of positions gives the velocity 0.35 s ago. A car changing lane
-    accelerates sideways 1 m/s^2 for a second and more, and every urban run's lead car was read
-    0.6 m/s short sideways to the end of its lane change, the largest single speed error on every
-    run (docs/results/tracking.md, "Session 66"). Only a piece already moving briskly is carried: on
-    slower ones (a walker setting off, a standing post's jittering corners) the parabolas' scatter
-    passed for acceleration and added false moving frames.
-    """
-
-    sigmas: float = 0.0  # 0: never carried
-    min_mps: float = 0.0
-    samples: int = HISTORY
-
-
-NO_LEAD = CornerLead()
-#: fewest corners with ``CornerLead.samples`` positions whose median acceleration a piece is carried by.
-LEAD_MIN_CORNERS: int = 4
 
 
 class CornerHistory:
@@ -335,59 +310,6 @@ def corner_velocity(
 
 
 @numba.njit(cache=True)
-def _median(values: NDArray, scratch: NDArray) -> float:
-    """np.median of ``values``, selected in ``scratch`` (at least as long) without a sort: each np.median
-    call allocates, and the insertion sort this replaced fell back to it past 64 values, where a car's
-    side in the tracker's benchmark holds 130 corners since session 48."""
-    m = values.shape[0]
-    for i in range(m):
-        scratch[i] = values[i]
-    h = m // 2
-    upper = _select(scratch, m, h)
-    if m % 2:
-        return upper
-    lower = scratch[0]  # the largest of the ``h`` values the selection left below ``upper``
-    for i in range(1, h):
-        lower = max(lower, scratch[i])
-    return 0.5 * (lower + upper)
-
-
-@numba.njit(cache=True)
-def _select(a: NDArray, m: int, k: int) -> float:
-    """The ``k``-th smallest of ``a[:m]``, with every smaller value left before slot ``k``.
-
-    Each round moves the values below a pivot (the median of three) to the front and those equal to
-    it next, by swaps whose outcome is added, not branched on: over the tracker benchmark's frames
-    ``_piece_velocities`` took 0.48 ms a frame with it against 0.57 with Hoare's selection, whose
-    branches depend on the values. The pass for equal values keeps runs of them (corners followed alike share their
-    doubts) from taking a round each.
-    """
-    lo, hi = 0, m - 1
-    while lo < hi:
-        x, y, z = a[lo], a[(lo + hi) >> 1], a[hi]
-        pivot = max(min(x, y), min(max(x, y), z))
-        below = lo
-        for i in range(lo, hi + 1):
-            v = a[i]
-            a[i] = a[below]
-            a[below] = v
-            below += v < pivot
-        if k < below:
-            hi = below - 1
-            continue
-        equal = below
-        for i in range(below, hi + 1):
-            v = a[i]
-            a[i] = a[equal]
-            a[equal] = v
-            equal += v <= pivot
-        if k < equal or equal == lo:  # (equal == lo only for a NaN pivot: no round would end)
-            return pivot
-        lo = equal
-    return a[k]
-
-
-@numba.njit(cache=True)
 def _piece_velocities(
     voxels: NDArray, owner: NDArray, now: NDArray, n: NDArray, missed: NDArray, min_n: int, edge: float,
     fit: NDArray, std: NDArray, pieces: int, eye: NDArray, grid: NDArray, xy: NDArray, t: NDArray, w: NDArray,
@@ -401,7 +323,7 @@ def _piece_velocities(
     doubt into their lines'.
 
     Which piece each corner is on comes from corner_owners.py (``grid``: its scratch). With
-    ``lead_sigmas`` over 0 a piece's lines are first carried to this frame (``CornerLead``, ``_carry``):
+    ``lead_sigmas`` over 0 a piece's lines are first carried to this frame (common/corner_lead.py):
     ``xy``, ``t`` and ``w`` are the history's rings.
     """
     whose, count = owners(voxels, owner, now, n, missed, min_n, edge, pieces, grid)
@@ -414,7 +336,7 @@ def _piece_velocities(
             fill[whose[c]] += 1
     slope, factor = _fit_lines(fit, members)
     if lead_sigmas > 0.0:
-        _carry(slope, members, start, xy, t, n, w, lead_sigmas, lead_min_mps, lead_samples)
+        carry(slope, members, start, xy, t, n, w, lead_sigmas, lead_min_mps, lead_samples)
     doubt, off = np.empty(members.shape[0]), np.empty(members.shape[0])
     side = np.empty(members.shape[0])  # each corner's speed across its line of sight from the eye
     for i in range(members.shape[0]):
@@ -430,81 +352,16 @@ def _piece_velocities(
         if count[p] == 0:
             continue
         a, b = start[p], start[p + 1]
-        vx, vy = _median(slope[a:b, 0], scratch), _median(slope[a:b, 1], scratch)
+        vx, vy = median(slope[a:b, 0], scratch), median(slope[a:b, 1], scratch)
         velocity[p, 0], velocity[p, 1] = vx, vy
         for i in range(a, b):
             off[i] = np.sqrt((slope[i, 0] - vx) ** 2 + (slope[i, 1] - vy) ** 2)
-        spread[p] = _median(off[a:b], scratch)
-        stereo[p] = _median(doubt[a:b], scratch)
-        va = _median(side[a:b], scratch)
+        spread[p] = median(off[a:b], scratch)
+        stereo[p] = median(doubt[a:b], scratch)
+        va = median(side[a:b], scratch)
         across[p] = va
         for i in range(a, b):
             off[i] = abs(side[i] - va)
-        across_spread[p] = _median(off[a:b], scratch)
-        across_factor[p] = _median(factor[a:b], scratch)
+        across_spread[p] = median(off[a:b], scratch)
+        across_factor[p] = median(factor[a:b], scratch)
     return velocity, spread, stereo, count, across, across_spread, across_factor
-
-
-@numba.njit(cache=True)
-def _carry(
-    slope: NDArray, members: NDArray, start: NDArray, xy: NDArray, t: NDArray, n: NDArray, w: NDArray,
-    sigmas: float, min_mps: float, samples: int,
-) -> None:  # fmt: skip
-    """Each piece's lines (``slope``, by member) carried to their last position's time by the median of
-    its corners' accelerations, axis by axis, where it is ``sigmas`` of its scatter (MAD) sure, on a
-    piece whose median velocity is ``min_mps`` or more (``CornerLead``)."""
-    m = members.shape[0]
-    acc, lead, which = np.empty((m, 2)), np.empty(m), np.empty(m, np.int64)
-    scratch, values = np.empty(max(1, m)), np.empty(max(1, m))
-    for p in range(start.shape[0] - 1):
-        a, b = start[p], start[p + 1]
-        if b - a < LEAD_MIN_CORNERS:
-            continue
-        if np.hypot(_median(slope[a:b, 0], scratch), _median(slope[a:b, 1], scratch)) < min_mps:
-            continue
-        k = 0
-        for i in range(a, b):
-            c = members[i]
-            if n[c] >= samples:
-                acc[k, 0], acc[k, 1], lead[k] = _acceleration(xy, t, n[c], w[c], c)
-                which[k] = i
-                k += 1
-        if k < LEAD_MIN_CORNERS:
-            continue
-        for axis in range(2):
-            median = _median(acc[:k, axis], scratch)
-            for q in range(k):
-                values[q] = abs(acc[q, axis] - median)
-            if abs(median) > sigmas * MAD_SIGMA * _median(values[:k], scratch) / np.sqrt(k):
-                for q in range(k):
-                    slope[which[q], axis] += median * lead[q]
-
-
-@numba.njit(cache=True)
-def _acceleration(xy: NDArray, t: NDArray, n: int, w: int, r: int) -> tuple[float, float, float]:
-    """Row ``r``'s acceleration (x, y) from the parabola through its last ``n`` positions, and how far
-    (s) the velocity at its last position lies past its line's: the parabola's slope there is the
-    line's plus acceleration times that. The parabola's square term is taken orthogonal to the line's
-    terms, so the line (``_line``) stays as fitted."""
-    t_mean = 0.0
-    for q in range(w - n, w):
-        t_mean += t[r, q % HISTORY]
-    t_mean /= n
-    s2 = s3 = 0.0
-    for q in range(w - n, w):
-        d = t[r, q % HISTORY] - t_mean
-        s2 += d * d
-        s3 += d * d * d
-    s2 = max(s2, 1e-12)
-    mean2, skew = s2 / n, s3 / s2  # the square term less its projections on the constant and the line
-    ss = sx = sy = 0.0
-    for q in range(w - n, w):
-        k = q % HISTORY
-        d = t[r, k] - t_mean
-        e = d * d - mean2 - skew * d
-        ss += e * e
-        sx += e * xy[r, k, 0]
-        sy += e * xy[r, k, 1]
-    ss = max(ss, 1e-12)
-    last = t[r, (w - 1) % HISTORY] - t_mean
-    return 2.0 * sx / ss, 2.0 * sy / ss, last - 0.5 * skew

@@ -8,18 +8,17 @@ import numpy as np
 import pytest
 from test_tracker import EDGE, box_voxels, new_tracker, of_voxels, step
 
+from common.corner_lead import CornerLead, _acceleration
 from common.corner_motion import (
     HISTORY,
     MAX_GAP,
     CornerHistory,
-    CornerLead,
     CornerVelocity,
-    _acceleration,
     _fit_lines,
-    _median,
     corner_velocity,
 )
 from common.corner_owners import GRID_CELLS, _chained, owners
+from common.fast_median import median
 from common.messages import Cluster, Clusters, EgoMotion
 from services.tracker.anchor import footprint
 
@@ -172,7 +171,7 @@ def test_the_selected_median_is_numpys_with_ties_and_runs_of_equal_values() -> N
             np.full(m, 0.154),  # corners followed alike share their doubts
             np.sort(rng.normal(size=m))[::-1].copy(),
         ):
-            assert _median(values, scratch) == np.median(values), (m, values)
+            assert median(values, scratch) == np.median(values), (m, values)
 
 
 def test_a_clusters_corners_outvote_a_standing_neighbours_merged_into_it() -> None:

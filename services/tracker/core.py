@@ -39,7 +39,8 @@ import numpy as np
 import numpy.typing as npt
 
 from common.config import Config, VolumeConfig
-from common.corner_motion import CornerHistory, CornerLead
+from common.corner_lead import CornerLead
+from common.corner_motion import CornerHistory
 from common.messages import Cluster, Clusters, EgoMotion, Obstacles
 from services.tracker import kalman, motion_window
 from services.tracker.anchor import Footprint

@@ -21,7 +21,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from common.corner_motion import NO_LEAD, CornerHistory, CornerLead, corner_velocity
+from common.corner_lead import NO_LEAD, CornerLead
+from common.corner_motion import CornerHistory, corner_velocity
 from services.tracker import kalman
 from services.tracker.anchor import Footprint
 from services.tracker.left_behind import restart_from_rest
