@@ -12,7 +12,7 @@ if [ ! -x .venv/bin/python ]; then
 fi
 .venv/bin/python -m pip install --quiet --upgrade pip >/dev/null
 .venv/bin/python -m pip install --quiet -c constraints.txt -e ".[dev]"
-# compile the numba kernels (voxel map, flood fill, tracker) once into the source tree's cache, so
+# compile the numba kernels (voxel map, flood fill, tracker) once into .numba/ (common/numba_cache.py), so
 # that no service stalls for its first frame: 30 s cold on a 2-core machine, 3 s once cached; six
 # frames, since the tracker's left-behind test (services/tracker/left_behind.py) first looks three back
 echo "setup: compiling the numba kernels on 6 frames of the bundled recording (once)" >&2

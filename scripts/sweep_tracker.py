@@ -122,7 +122,7 @@ def pooled(rows: list[dict[str, Any]]) -> str:
     pairs = sum(r["pairs"] for r in rows)
     sq = sum(r["pairs"] * r["rmse_mps"] ** 2 for r in rows if r["pairs"])
     one = [r["one_cluster_pct"] for r in rows if r.get("one_cluster_pct") is not None]
-    rmse = f" {np.sqrt(sq / pairs):.2f}" if pairs else ""
+    rmse = f" {np.sqrt(sq / pairs):.3f}" if pairs else ""
     out = f"{tp}/{fp}/{fn}{rmse}" + (f" one {np.mean(one):.1f}" if one else "")
     keys = ("stationary", "stationary_matched", "stationary_moving", "matched", "phantoms")
     standing, found, called, matched, phantoms = (sum(r[k] for r in rows) for k in keys)
