@@ -12,11 +12,16 @@ from __future__ import annotations
 
 import hashlib
 import os
+import shutil
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES: tuple[str, ...] = ("common", "services")
+#: another version's cache made this long ago is deleted when a new version's is first chosen: a
+#: version's is several MB, and a service started before an edit may still be writing its own.
+STALE_S: float = 86_400.0
 
 
 def versioned_cache_dir(root: Path = ROOT) -> Path:
@@ -36,7 +41,24 @@ def use_versioned_cache() -> None:
     """Point numba's cache at ``versioned_cache_dir``, unless the environment already chose one."""
     if os.environ.get("NUMBA_CACHE_DIR"):
         return
-    where = str(versioned_cache_dir())
+    chosen = versioned_cache_dir()
+    if not chosen.exists():
+        prune(chosen)
+    where = str(chosen)
     os.environ["NUMBA_CACHE_DIR"] = where  # read when numba is imported, here and in child processes
     if "numba" in sys.modules:  # imported already: its configuration has been read
         sys.modules["numba"].config.CACHE_DIR = where
+
+
+def prune(keep: Path, stale_s: float = STALE_S) -> None:
+    """Delete the other versions' caches beside ``keep`` made over ``stale_s`` ago (by the time their
+    directory got its last package's subdirectory)."""
+    if not keep.parent.is_dir():
+        return
+    now = time.time()
+    for other in keep.parent.iterdir():
+        try:
+            if other != keep and other.is_dir() and now - other.stat().st_mtime > stale_s:
+                shutil.rmtree(other, ignore_errors=True)
+        except OSError:  # another process pruned it first
+            continue

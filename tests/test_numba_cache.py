@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from common.numba_cache import ROOT, versioned_cache_dir
+from common.numba_cache import ROOT, prune, versioned_cache_dir
 
 CALLER = """import numba
 from common.callee import step
@@ -61,6 +61,16 @@ def test_the_digest_follows_files_with_kernels_only(tmp_path: Path) -> None:
     _tree(tmp_path, 3)
     assert versioned_cache_dir(tmp_path) != first
     assert versioned_cache_dir(tmp_path).parent == tmp_path / ".numba"
+
+
+def test_other_versions_caches_are_pruned_once_stale(tmp_path: Path) -> None:
+    keep, fresh, stale = tmp_path / "c", tmp_path / "b", tmp_path / "a"
+    for d in (keep, fresh, stale):
+        d.mkdir()
+        (d / "kernel.nbi").write_text("x")
+    os.utime(stale, (0, 0))
+    prune(keep, stale_s=3600)
+    assert keep.is_dir() and fresh.is_dir() and not stale.exists()
 
 
 @pytest.mark.timeout(600)
