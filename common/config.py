@@ -88,13 +88,14 @@ class StereoConfig:
     contrast_span: float = 160.0  # a dimmer pair (1-99 % grey levels) gets P1, P2 as if it spanned this; 0: off
     pre_filter_cap: int = 63  # lower caps gain 0.3 points of D1 but lose sub-pixel precision
     mode: str = "3way"  # 3way | sgbm | hh | hh4
-    # > 1: match the pair widened this many times, every pixel setting in the widened pixels (matcher.py). 2 on
-    # the synthetic camera: urban one-cluster 89.4 -> 93.0 %, at 1.86 x the stage's time; on KITTI raw density
-    # 91.1 -> 86.9 %, so 1 (docs/results/voxel.md, "Session 64")
-    upsample_x: int = 1
+    # > 1: match the pair widened this many times, every pixel setting in the widened pixels (matcher.py). The
+    # whole pair widened twice on the synthetic camera: urban one-cluster 89.4 -> 93.0 %, at 1.86 x the stage's
+    # time; on KITTI raw density 91.1 -> 86.9 % (docs/results/voxel.md, "Session 64"); 1: not widened
+    upsample_x: int = 2
     # with upsample_x > 1: 0 widens the whole pair; over 0, only the box where the volume beyond this range
-    # (m) projects, the unwidened disparity kept in its holes; a dim pair not at all (far_band.py; session 65)
-    upsample_beyond_m: float = 0.0
+    # (m) projects, the unwidened disparity kept in its holes; a dim pair not at all (far_band.py; session 65).
+    # 18 since session 67 (15: as good, its pass 1.3-1.5 x as long; 20, 22: held-out one-cluster under 90)
+    upsample_beyond_m: float = 18.0
     color_matching: bool = False  # False = match grey images (measured better and faster)
     fill_left_border: bool = True  # pad on the left so the first columns get a disparity too
     decimation: int = 1  # keep every n-th point in x and y

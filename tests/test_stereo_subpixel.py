@@ -47,8 +47,9 @@ def _pair(d_wall: float, d_near: float | None = None, gain: float = 1.0, seed: i
 
 def _disparity(frame: StereoFrame, iterations: int) -> np.ndarray:
     # the blob texture spans a third of the grey levels, which exposure.py would treat as dusk:
-    # these are tests of the daylight matcher (as test_stereo_depth.py's)
-    sets = [f"stereo.subpixel_iterations={iterations}", "stereo.contrast_span=0"]
+    # these are tests of the daylight matcher (as test_stereo_depth.py's), on the pair as it is: the far
+    # field's widened pass (far_band.py) refines in its own, half-width pixels
+    sets = [f"stereo.subpixel_iterations={iterations}", "stereo.contrast_span=0", "stereo.upsample_x=1"]
     core = StereoDepth.from_config(load_config(sets=sets))
     return core.process(frame)[1].disparity
 

@@ -45,11 +45,8 @@ class StereoDepth:
             raise ConfigError("stereo.num_disparities must be >= 0 (0 = from calibration), decimation >= 1")
         if stereo.keypoints < 0 or stereo.keypoint_cell_px < 1:
             raise ConfigError("stereo.keypoints must be >= 0 (0 = off), keypoint_cell_px >= 1")
-        if stereo.upsample_beyond_m < 0 or (stereo.upsample_beyond_m > 0 and stereo.upsample_x < 2):
-            raise ConfigError(
-                f"stereo.upsample_beyond_m must be >= 0, and over 0 only with stereo.upsample_x 2 or more "
-                f"(it says where the pair is widened), not {stereo.upsample_beyond_m} with {stereo.upsample_x}"
-            )
+        if stereo.upsample_beyond_m < 0:  # with upsample_x 1 nothing is widened, wherever it says
+            raise ConfigError(f"stereo.upsample_beyond_m must be >= 0 (0: all of it), not {stereo.upsample_beyond_m}")
         self.cfg = stereo
         seen = volume.seen()  # and the lookahead beyond it
         self.seen_volume = seen

@@ -78,14 +78,20 @@ def far_reach_px(calib: Calibration, beyond_m: float) -> int:
 def merged(disparity: DisparityMap, widened: DisparityMap, top: int, left: int, reach_px: int) -> DisparityMap:
     """``disparity`` with the widened pass's values (``widened``: its block from row ``top``, column
     ``left``) where it has one short of its reach and ``disparity`` does not put the pixel nearer
-    than that; in its holes, ``disparity``'s value only where it is not in front of the widened
-    values beside it."""
+    than that (in a hole of ``disparity``, only where ``disparity`` has a value short of that reach
+    within ``HOLE_REACH_PX`` columns); in the widened pass's holes, ``disparity``'s value only where
+    it is not in front of the widened values beside it."""
     out = disparity.copy()
     block = (slice(top, top + widened.shape[0]), slice(left, left + widened.shape[1]))
     near = reach_px - REACH_MARGIN_PX
     before = disparity[block]
     with np.errstate(invalid="ignore"):  # NaN: no value, on either side
         take = (widened < near) & ~(before >= near)
+        # a hole is filled only beside the far field: a wall 4 m ahead, out of the widened pass's reach,
+        # is matched in its holes and along the image's left edge to far disparities that pass its checks
+        window = np.ones((1, 2 * HOLE_REACH_PX + 1), np.uint8)
+        far_beside = cv2.dilate((before < near).astype(np.uint8), window) > 0
+        take &= ~np.isnan(before) | far_beside
         beside = np.where(take, widened, np.float32(np.inf)).astype(np.float32)
         nearest = cv2.erode(beside, np.ones((1, 2 * HOLE_REACH_PX + 1), np.uint8), borderType=cv2.BORDER_REPLICATE)
         keep = (before >= near) | (before <= nearest + HOLE_STEP_PX)
