@@ -45,7 +45,7 @@ class StereoDepth:
             raise ConfigError("stereo.num_disparities must be >= 0 (0 = from calibration), decimation >= 1")
         if stereo.keypoints < 0 or stereo.keypoint_cell_px < 1:
             raise ConfigError("stereo.keypoints must be >= 0 (0 = off), keypoint_cell_px >= 1")
-        if stereo.upsample_beyond_m < 0:  # with upsample_x 1 nothing is widened, wherever it says
+        if stereo.upsample_beyond_m < 0:  # (with upsample_x 1 nothing is widened, whatever it says)
             raise ConfigError(f"stereo.upsample_beyond_m must be >= 0 (0: all of it), not {stereo.upsample_beyond_m}")
         self.cfg = stereo
         seen = volume.seen()  # and the lookahead beyond it
