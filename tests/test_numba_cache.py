@@ -24,13 +24,9 @@ CALLEE = """import numba
 def step(x):
     return x * {factor}
 """
-#: the caller's kernel, run in a fresh interpreter over the tree ``root`` with its cache chosen as
-#: common/numba_cache.py chooses it
-RUN = """import os, sys
+#: the caller's kernel, run in a fresh interpreter over the tree ``root`` (its cache given in the environment)
+RUN = """import sys
 sys.path.insert(0, {root!r})
-sys.path.insert(1, {repo!r})
-from common.numba_cache import versioned_cache_dir
-os.environ["NUMBA_CACHE_DIR"] = str(versioned_cache_dir(__import__("pathlib").Path({root!r})))
 from common.caller import run
 print(run(10))
 """
@@ -44,9 +40,9 @@ def _tree(root: Path, factor: int) -> None:
 
 
 def _run(root: Path) -> int:
-    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
-    code = RUN.format(root=str(root), repo=str(ROOT))
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=240)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(versioned_cache_dir(root))}  # as common/numba_cache.py chooses it
+    out = subprocess.run([sys.executable, "-c", RUN.format(root=str(root))], env=env, cwd=root, capture_output=True,
+                         text=True, timeout=240)  # fmt: skip
     assert out.returncode == 0, out.stderr
     return int(out.stdout.split()[-1])
 

@@ -93,7 +93,7 @@ def merged(disparity: DisparityMap, widened: DisparityMap, top: int, left: int, 
         far_beside = cv2.dilate((before < near).astype(np.uint8), window) > 0
         take &= ~np.isnan(before) | far_beside
         beside = np.where(take, widened, np.float32(np.inf)).astype(np.float32)
-        nearest = cv2.erode(beside, np.ones((1, 2 * HOLE_REACH_PX + 1), np.uint8), borderType=cv2.BORDER_REPLICATE)
+        nearest = cv2.erode(beside, window, borderType=cv2.BORDER_REPLICATE)
         keep = (before >= near) | (before <= nearest + HOLE_STEP_PX)
     out[block] = np.where(take, widened, np.where(keep, before, np.float32(np.nan)))
     return out
