@@ -312,6 +312,9 @@ class TrackerConfig:
     motion_model_on: float = 0.9
     motion_model_off: float = 0.5
     motion_model_corners: bool = True  # ... and corners sure of its pace turn a track moving too, as in the rule
+    # ... and a frame younger than moving_min_frames when their chance clears this (1: never; session 68: 0.95-0.98
+    # alike on the tuning runs, 0.97 the fewest false frames there)
+    motion_model_young_on: float = 0.97
 
 
 @dataclass

@@ -8,14 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import load_script
-from test_tracker import EDGE, box_voxels, new_tracker, of_voxels
+from test_tracker import EDGE, box_voxels, counted, new_tracker, of_voxels, step
 
 from common.errors import ConfigError
 from common.evaluation.evaluate import evaluate_recording
 from common.messages import Clusters, EgoMotion
 from services.demo import BUNDLED
 from services.pipeline import process_file
-from services.tracker.motion_model import BUILTIN, FEATURES, MotionModel
+from services.tracker.motion_model import BUILTIN, FEATURES, LearnedLabel, MotionModel
 from services.voxel_mapper.join_model import BUILTIN as JOIN_MODEL
 
 train = load_script("train_motion_model")
@@ -102,3 +102,32 @@ def test_corners_sure_of_his_pace_call_a_walker_going_straight_away_moving_where
         assert not any(trees_alone), seed
         assert any(with_corners[:6]) and all(with_corners[-5:]), (seed, with_corners)
         assert not any(_noisy_walk(True, 0.0, seed))  # a post whose cluster swings as much
+
+
+class _Sure:
+    """Trees that give every track the same chance."""
+
+    def __init__(self, chance: float) -> None:
+        self.chance = chance
+
+    def probability(self, rows: np.ndarray) -> np.ndarray:
+        return np.full(len(rows), self.chance)
+
+
+def test_a_track_a_frame_younger_than_the_rule_allows_turns_moving_only_when_the_trees_are_surer() -> None:
+    tracker = new_tracker()
+    for k in range(3):
+        step(tracker, k, [counted(box_voxels((15.0 + 0.15 * k, -4.0, 0.0), (15.5 + 0.15 * k, -3.5, 1.75)))])
+    t, labeller = tracker.tracks, tracker.labeller
+    assert len(t) == 1 and labeller.hysteresis.min_frames == 3
+    assert labeller.learned is not None and labeller.learned.young_on == 0.97  # the default
+
+    def moving(chance: float, age: int, young_on: float = 0.97) -> bool:
+        t.age[:], t.moving[:], t.floor[:] = age, False, 0.0
+        learned = LearnedLabel(_Sure(chance), on=0.9, off=0.5, corners=False, young_on=young_on)  # type: ignore[arg-type]
+        return bool(labeller.by_model(t, EDGE, np.zeros(2), learned)[0])
+
+    assert moving(0.92, 3) and not moving(0.92, 2)  # sure enough at three frames old, not at two
+    assert moving(0.98, 2) and not moving(0.96, 2)  # at two, only surer
+    assert not moving(0.99, 1)  # never at one
+    assert not moving(0.99, 2, young_on=1.0)  # 1: as before

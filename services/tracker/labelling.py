@@ -140,6 +140,9 @@ class MotionLabeller:
         """The trees' label, with a hysteresis of their chance; the track's age and floor gate it as the rule's."""
         chance = learned.model.probability(self.features(t, voxel_edge, eye))
         turn_on = (chance > learned.on) & (t.age >= self.hysteresis.min_frames)
+        # a track born late on a walker (his first one lost, or restarted) is sure by its second
+        # frame as often as by its third; the trees, surer still, may say so a frame sooner
+        turn_on |= (chance > learned.young_on) & (t.age >= self.hysteresis.min_frames - 1)
         moving = np.where(t.moving, chance > learned.off, turn_on)
         if learned.corners:
             # corners sure of a walker's pace are physics the trees may not have seen: a walker going

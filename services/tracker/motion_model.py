@@ -74,12 +74,15 @@ class LearnedLabel:
     on: float  # a stationary track turns moving when the chance clears this
     off: float  # ... and a moving one stays moving while it clears this
     corners: bool = True  # corners sure of its pace also turn it moving, as in the rule (labelling.by_corners)
+    young_on: float = 1.0  # a track a frame younger than the rule allows turns moving when the chance clears this
 
 
-def learned_label(setting: str, on: float, off: float, corners: bool = True) -> LearnedLabel | None:
+def learned_label(
+    setting: str, on: float, off: float, corners: bool = True, young_on: float = 1.0
+) -> LearnedLabel | None:
     """The configured trees with their hysteresis; None for the rule."""
     model = MotionModel.configured(setting)
-    return None if model is None else LearnedLabel(model, on, off, corners)
+    return None if model is None else LearnedLabel(model, on, off, corners, young_on)
 
 
 def motion_features(
