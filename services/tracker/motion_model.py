@@ -16,7 +16,10 @@ the evaluation's matching which tracks were on moving objects. A track turns mov
 chance clears ``tracker.motion_model_on`` and stays moving while it clears
 ``motion_model_off`` (docs/results/tracking.md, "Session 55"). The corners followed on a track,
 sure of a walker's pace, turn it moving too, as in the rule (``motion_model_corners``): the runs
-the trees learnt from hold no walker going straight away down the lane.
+the trees learnt from hold no walker going straight away down the lane. A track a frame younger
+than the rule's ``moving_min_frames`` turns moving when their chance clears
+``motion_model_young_on`` (0.97): a walker's track born late is as often sure at its second frame
+(docs/results/tracking.md, "Session 68").
 """
 
 from __future__ import annotations
@@ -68,7 +71,8 @@ class MotionModel(BoostedTrees):
 
 @dataclass(frozen=True)
 class LearnedLabel:
-    """The trees and their hysteresis (config ``tracker.motion_model``, ``motion_model_on``, ``motion_model_off``)."""
+    """The trees and their hysteresis (config ``tracker.motion_model``, ``motion_model_on``, ``motion_model_off``,
+    ``motion_model_corners``, ``motion_model_young_on``)."""
 
     model: MotionModel
     on: float  # a stationary track turns moving when the chance clears this
