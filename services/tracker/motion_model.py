@@ -18,8 +18,8 @@ chance clears ``tracker.motion_model_on`` and stays moving while it clears
 sure of a walker's pace, turn it moving too, as in the rule (``motion_model_corners``): the runs
 the trees learnt from hold no walker going straight away down the lane. A track a frame younger
 than the rule's ``moving_min_frames`` turns moving when their chance clears
-``motion_model_young_on`` (0.97): a walker's track born late is as often sure at its second frame
-(docs/results/tracking.md, "Session 68").
+``motion_model_young_on`` (0.97): a walker's track born late was often over 0.9 sure at its second
+frame, which the rule's age left standing (docs/results/tracking.md, "Session 68").
 """
 
 from __future__ import annotations
