@@ -315,6 +315,7 @@ class TrackerConfig:
     # ... and a frame younger than moving_min_frames when their chance clears this (1: never; session 68: 0.95-0.98
     # alike on the tuning runs, 0.97 the fewest false frames there)
     motion_model_young_on: float = 0.97
+    motion_model_young_sigma_mps: float = 1.0  # ... if its filter knows its speed to this (a car: 5.6 +- 3.4 m/s)
 
 
 @dataclass

@@ -122,12 +122,17 @@ def test_a_track_a_frame_younger_than_the_rule_allows_turns_moving_only_when_the
     assert len(t) == 1 and labeller.hysteresis.min_frames == 3
     assert labeller.learned is not None and labeller.learned.young_on == 0.97  # the default
 
-    def moving(chance: float, age: int, young_on: float = 0.97) -> bool:
+    assert labeller.learned.young_sigma == 1.0
+
+    def moving(chance: float, age: int, young_on: float = 0.97, speed_sigma: float = 0.5) -> bool:
         t.age[:], t.moving[:], t.floor[:] = age, False, 0.0
-        learned = LearnedLabel(_Sure(chance), on=0.9, off=0.5, corners=False, young_on=young_on)  # type: ignore[arg-type]
+        t.p[:, 3:6, 3:6] = np.eye(3) * speed_sigma**2
+        learned = LearnedLabel(_Sure(chance), 0.9, 0.5, False, young_on, 1.0)  # type: ignore[arg-type]
         return bool(labeller.by_model(t, EDGE, np.zeros(2), learned)[0])
 
     assert moving(0.92, 3) and not moving(0.92, 2)  # sure enough at three frames old, not at two
     assert moving(0.98, 2) and not moving(0.96, 2)  # at two, only surer
+    assert not moving(0.99, 2, speed_sigma=2.0)  # ... and only if its filter knows its speed
+    assert moving(0.92, 3, speed_sigma=2.0)  # which the trees judge alone from three frames on
     assert not moving(0.99, 1)  # never at one
     assert not moving(0.99, 2, young_on=1.0)  # 1: as before

@@ -235,7 +235,12 @@ class Tracker:
             upright_by_points_m=t.upright_by_points_m,
             twins=Twins(t.twin_overlap_m, t.twin_mps, t.twin_wide_m, t.twin_near_m),
             learned=learned_label(
-                t.motion_model, t.motion_model_on, t.motion_model_off, t.motion_model_corners, t.motion_model_young_on
+                t.motion_model,
+                t.motion_model_on,
+                t.motion_model_off,
+                t.motion_model_corners,
+                t.motion_model_young_on,
+                t.motion_model_young_sigma_mps,
             ),
             corners=CornerRule(
                 t.corner_samples,

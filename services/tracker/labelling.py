@@ -43,7 +43,7 @@ import numpy.typing as npt
 from services.tracker import motion_window
 from services.tracker.fragments import Standing
 from services.tracker.keypoint_motion import NO_CORNERS, CornerRule
-from services.tracker.motion_model import LearnedLabel, motion_features
+from services.tracker.motion_model import FEATURES, LearnedLabel, motion_features
 from services.tracker.motion_state import Hysteresis, across_sight, label, slide_speed, speed_and_sigma, width_slide
 from services.tracker.track import TrackTable
 
@@ -138,12 +138,14 @@ class MotionLabeller:
 
     def by_model(self, t: TrackTable, voxel_edge: float, eye: NDArray, learned: LearnedLabel) -> NDArray:
         """The trees' label, with a hysteresis of their chance; the track's age and floor gate it as the rule's."""
-        chance = learned.model.probability(self.features(t, voxel_edge, eye))
+        rows = self.features(t, voxel_edge, eye)
+        chance = learned.model.probability(rows)
         turn_on = (chance > learned.on) & (t.age >= self.hysteresis.min_frames)
         # a walker's track born late (his first lost or restarted) is two frames old when the rule's
         # age keeps it standing: on the held-out urban runs the trees were over 0.9 sure on 10 of
         # 16 such frames; over 0.97 they turned it moving a frame sooner with no false frame
-        turn_on |= (chance > learned.young_on) & (t.age >= self.hysteresis.min_frames - 1)
+        young = (chance > learned.young_on) & (t.age >= self.hysteresis.min_frames - 1)
+        turn_on |= young & (rows[:, FEATURES.index("filter_sigma")] <= learned.young_sigma)
         moving = np.where(t.moving, chance > learned.off, turn_on)
         if learned.corners:
             # corners sure of a walker's pace are physics the trees may not have seen: a walker going

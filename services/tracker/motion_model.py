@@ -79,14 +79,15 @@ class LearnedLabel:
     off: float  # ... and a moving one stays moving while it clears this
     corners: bool = True  # corners sure of its pace also turn it moving, as in the rule (labelling.by_corners)
     young_on: float = 1.0  # a track a frame younger than the rule allows turns moving when the chance clears this
+    young_sigma: float = float("inf")  # ... and its filter knows its speed to this (m/s, one sigma)
 
 
 def learned_label(
-    setting: str, on: float, off: float, corners: bool = True, young_on: float = 1.0
+    setting: str, on: float, off: float, corners: bool = True, young_on: float = 1.0, young_sigma: float = float("inf")
 ) -> LearnedLabel | None:
     """The configured trees with their hysteresis; None for the rule."""
     model = MotionModel.configured(setting)
-    return None if model is None else LearnedLabel(model, on, off, corners, young_on)
+    return None if model is None else LearnedLabel(model, on, off, corners, young_on, young_sigma)
 
 
 def motion_features(
