@@ -49,6 +49,9 @@ from services.tracker.track import TrackTable
 
 NDArray = npt.NDArray[Any]
 
+#: the column of the trees' rows that holds the filter's speed doubt
+FILTER_SIGMA = FEATURES.index("filter_sigma")
+
 
 @dataclass(frozen=True)
 class MotionLabeller:
@@ -143,9 +146,11 @@ class MotionLabeller:
         turn_on = (chance > learned.on) & (t.age >= self.hysteresis.min_frames)
         # a walker's track born late (his first lost or restarted) is two frames old when the rule's
         # age keeps it standing: on the held-out urban runs the trees were over 0.9 sure on 10 of
-        # 16 such frames; over 0.97 they turned it moving a frame sooner with no false frame
+        # 16 such frames; over 0.97 they turned it moving a frame sooner with no false frame, and
+        # where its filter knows its speed the label's speed is near the truth (a car's second
+        # frame read 5.6 +- 3.4 of its 11 m/s)
         young = (chance > learned.young_on) & (t.age >= self.hysteresis.min_frames - 1)
-        turn_on |= young & (rows[:, FEATURES.index("filter_sigma")] <= learned.young_sigma)
+        turn_on |= young & (rows[:, FILTER_SIGMA] <= learned.young_sigma)
         moving = np.where(t.moving, chance > learned.off, turn_on)
         if learned.corners:
             # corners sure of a walker's pace are physics the trees may not have seen: a walker going

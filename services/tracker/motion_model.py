@@ -18,8 +18,9 @@ chance clears ``tracker.motion_model_on`` and stays moving while it clears
 sure of a walker's pace, turn it moving too, as in the rule (``motion_model_corners``): the runs
 the trees learnt from hold no walker going straight away down the lane. A track a frame younger
 than the rule's ``moving_min_frames`` turns moving when their chance clears
-``motion_model_young_on`` (0.97): a walker's track born late was often over 0.9 sure at its second
-frame, which the rule's age left standing (docs/results/tracking.md, "Session 68").
+``motion_model_young_on`` (0.97) and its filter knows its speed to ``motion_model_young_sigma_mps``:
+a walker's track born late was often over 0.9 sure at its second frame, which the rule's age left
+standing (docs/results/tracking.md, "Session 68").
 """
 
 from __future__ import annotations
@@ -72,7 +73,7 @@ class MotionModel(BoostedTrees):
 @dataclass(frozen=True)
 class LearnedLabel:
     """The trees and their hysteresis (config ``tracker.motion_model``, ``motion_model_on``, ``motion_model_off``,
-    ``motion_model_corners``, ``motion_model_young_on``)."""
+    ``motion_model_corners``, ``motion_model_young_on``, ``motion_model_young_sigma_mps``)."""
 
     model: MotionModel
     on: float  # a stationary track turns moving when the chance clears this
