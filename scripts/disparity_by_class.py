@@ -27,7 +27,7 @@ import numpy.typing as npt
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from common.config import load_config
+from common.config_loading import load_config
 from common.messages import StereoFrame
 from common.scenarios.render import Renderer, Rig
 from common.scenarios.simulate import FRAME_RATE_HZ, scenario_world

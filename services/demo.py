@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from common.config import recording_overrides
+from common.config_loading import recording_overrides
 from common.errors import ConfigError, StereovoxError
 from common.recording import open_recording
 from services.launch import Supervisor
@@ -44,7 +44,7 @@ def _free_port() -> int:
 
 
 def recording_settings(info: dict[str, Any]) -> list[str]:
-    """``--set`` arguments for every service: what the recording says of itself (``config.recording_overrides``)."""
+    """``--set`` arguments for every service: what the recording says of itself (``recording_overrides``)."""
     return [arg for section, values in recording_overrides(info).items() for key, value in values.items()
             for arg in ("--set", f"{section}.{key}={value}")]
 

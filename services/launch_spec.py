@@ -254,7 +254,7 @@ def _check_code(svc: ServiceSpec) -> list[str]:
     """A ``stereovox run`` stage reads and writes what its code does, not only what the spec says."""
     import importlib
 
-    from common.config import load_config
+    from common.config_loading import load_config
     from services.runner import SERVICES
 
     name = svc.command[1] if len(svc.command) > 1 else ""

@@ -21,7 +21,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from common.config import Config, load_config, recording_overrides
+from common.config import Config
+from common.config_loading import load_config, recording_overrides
 from common.errors import ConfigError
 from common.messages import (
     Clusters,

@@ -21,7 +21,8 @@ from pathlib import Path
 import zenoh
 
 from common.bus import open_session
-from common.config import BusConfig, load_config
+from common.config import BusConfig
+from common.config_loading import load_config
 from common.errors import ConfigError
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"

@@ -20,7 +20,8 @@ import threading
 from types import FrameType
 
 from common.bus import QUEUE_POLICIES, open_session
-from common.config import Config, load_config
+from common.config import Config
+from common.config_loading import load_config
 from services.shell import run_stage
 
 log = logging.getLogger(__name__)

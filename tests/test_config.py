@@ -6,7 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from common.config import Config, load_config
+from common.config import Config
+from common.config_loading import load_config
 from common.errors import ConfigError
 
 

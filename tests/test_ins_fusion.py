@@ -12,7 +12,8 @@ from conftest import REPO, shared_path, stereovox_cmd
 from test_deploy import _check, _spec_variant
 from test_odometry import cam_motion, frame, vehicle_pose
 
-from common.config import Config, load_config
+from common.config import Config
+from common.config_loading import load_config
 from common.datasets import kitti_raw
 from common.errors import ConfigError
 from common.messages import GroundTruthEgo, StereoFrame, VehicleMotion

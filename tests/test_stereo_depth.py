@@ -11,7 +11,8 @@ from conftest import shared_path
 from textures import blob_texture
 
 from common.codec import decode, encode
-from common.config import Config, load_config
+from common.config import Config
+from common.config_loading import load_config
 from common.errors import CalibrationError, ConfigError, InputError
 from common.evaluation.stereo import d1_frame
 from common.geometry import camera_to_vehicle

@@ -7,7 +7,8 @@ import warnings
 import numpy as np
 import pytest
 
-from common.config import Config, load_config
+from common.config import Config
+from common.config_loading import load_config
 from common.errors import ConfigError
 from common.geometry import camera_to_vehicle
 from common.messages import Calibration, StereoFrame

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from textures import blob_texture
 
-from common.config import load_config
+from common.config_loading import load_config
 from common.geometry import camera_to_vehicle
 from common.messages import Calibration, StereoFrame
 from services.stereo_depth import StereoDepth

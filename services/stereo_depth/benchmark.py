@@ -18,7 +18,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from common.config import load_config
+from common.config_loading import load_config
 from common.messages import StereoFrame
 from common.recording import open_recording
 from services.stereo_depth.core import StereoDepth
