@@ -76,3 +76,51 @@ def test_a_gap_enclosed_by_one_surface_keeps_its_points() -> None:
     assert sky_mask(image, 5, 8.0, image, 10.0, disparity)[36:56, 36:124].mean() > 0.97
     disparity[:] = 10.0  # a wall all around: the gap is part of it
     assert not sky_mask(image, 5, 8.0, image, 10.0, disparity)[36:56, 36:124].any()
+
+
+def _slot() -> tuple[np.ndarray, np.ndarray]:
+    """The street with a second textured post at columns 100-109: a slot of sky 10 columns wide
+    between it and the pole; the pole 10 px of disparity, the post 4 (farther), what SGM carried
+    into the sky beside them a value between."""
+    image = _street()
+    image[10:80, 100:110] = blob_texture(np.random.default_rng(5), 70, 10)
+    disparity = np.full((HEIGHT, WIDTH), np.nan, dtype=np.float32)
+    disparity[10:80, 70:90] = 10.0
+    disparity[10:80, 100:110] = 4.0
+    disparity[10:40, 90:100] = 7.0
+    disparity[10:40, 66:70] = 10.0  # the pole's fattening into the open sky
+    return image, disparity
+
+
+def test_the_fringe_in_a_slot_between_two_depths_is_sky_and_beside_open_sky_it_is_not() -> None:
+    """The columns of sky beside an edge are not flat over the window, so they stay out of the mask
+    and keep what SGM carried in; in a slot between two depths that is a value in the air between
+    them, beside one edge against open sky the edge's own (a walker's head)."""
+    image, disparity = _slot()
+    plain = sky_mask(image, 5, 8.0, image, 10.0, disparity)
+    assert not plain[12:36, 90:92].any() and not plain[12:36, 98:100].any()  # the slot's sides
+    fringe = sky_mask(image, 5, 8.0, image, 10.0, disparity, fringe_px=3)
+    assert fringe[12:36, 90:100].all()
+    assert not fringe[12:36, 67:70].any()  # beside the pole, on the open sky's side
+    assert not fringe[12:40, 70:90].any() and not fringe[12:40, 100:110].any()  # the pole and the post
+    assert not fringe[40:, :].any()  # the wall under the sky: another colour
+    grown = fringe & ~plain
+    assert grown.any() and (image[grown] > 190).all()  # only the sky's colour
+
+
+def test_a_slot_between_parts_of_one_surface_keeps_its_fringe() -> None:
+    image, disparity = _slot()
+    disparity[10:80, 100:110] = 10.0  # the post as near as the pole: a gantry's two legs
+    disparity[10:40, 90:100] = 10.0
+    fringe = sky_mask(image, 5, 8.0, image, 10.0, disparity, fringe_px=3)
+    assert not fringe[12:36, 90:92].any() and not fringe[12:36, 98:100].any()
+
+
+def test_a_fringe_of_another_colour_keeps_its_points() -> None:
+    """A pale edge beside the sky (here two columns of the pole's side, 40 grey levels darker than
+    the sky) is the object's, not the sky's."""
+    image, disparity = _slot()
+    image[10:40, 90:92] = 160
+    fringe = sky_mask(image, 5, 8.0, image, 10.0, disparity, fringe_px=3)
+    assert not fringe[12:36, 90:92].any()
+    assert fringe[12:36, 93:100].all()  # the rest of the slot as before

@@ -91,7 +91,7 @@ class MultiResolutionMatcher:
         hidden_fill: tuple[int, int] = (0, 0),
         min_texture: float = 0.0,
         subpixel: SubpixelParams | None = None,
-        sky: tuple[int, float, float] = (0, 0.0, 0.0),
+        sky: tuple[int, float, float, int] = (0, 0.0, 0.0, 0),
         contrast_span: float = 0.0,
         upsample_x: int = 1,
     ) -> None:
@@ -108,7 +108,7 @@ class MultiResolutionMatcher:
         self.hidden_colour_step, self.hidden_max_px = hidden_fill
         self.min_texture = min_texture
         self.subpixel = subpixel
-        self.sky_window_px, self.sky_max_gradient, self.sky_gap_colour = sky
+        self.sky_window_px, self.sky_max_gradient, self.sky_gap_colour, self.sky_fringe_px = sky
         self.contrast_span = contrast_span
         if upsample_x < 1:
             raise ConfigError(f"stereo.upsample_x must be 1 or more, not {upsample_x}")
@@ -173,7 +173,7 @@ class MultiResolutionMatcher:
             )
         return cls(
             fine, coarse, cfg.lr_check, cfg.lr_max_diff_px, cfg.fill_support_px, cfg.color_matching, hidden,
-            cfg.min_texture, subpixel, (cfg.sky_window_px, cfg.sky_max_gradient, cfg.sky_gap_colour),
+            cfg.min_texture, subpixel, (cfg.sky_window_px, cfg.sky_max_gradient, cfg.sky_gap_colour, cfg.sky_fringe_px),
             cfg.contrast_span, cfg.upsample_x,
         )  # fmt: skip
 
@@ -319,7 +319,10 @@ class MultiResolutionMatcher:
         """NaN over the sky (``sky.py``), last, so no fill puts a value back."""
         if self.sky_window_px <= 0:
             return disparity
-        sky = sky_mask(left, self.sky_window_px, self.sky_max_gradient, left_rgb, self.sky_gap_colour, disparity)
+        sky = sky_mask(
+            left, self.sky_window_px, self.sky_max_gradient, left_rgb, self.sky_gap_colour, disparity,
+            fringe_px=self.sky_fringe_px,
+        )  # fmt: skip
         return np.where(sky, np.float32(np.nan), disparity).astype(np.float32, copy=False)
 
     def _fill_hidden(self, disparity: DisparityMap, left: Image) -> DisparityMap:

@@ -34,6 +34,11 @@ from services.stereo_depth.sgbm import Image
 
 #: flat regions smaller than this (pixels) are never taken for sky seen through a gap.
 MIN_GAP_PX = 25
+#: the fringe is sky only in a slot: a run of the sky's colour along a row at most this wide between two
+#: surfaces, whose disparities (the pixels either side) differ by more than ``SLOT_STEP_PX``. Beside
+#: one edge against open sky, or between two parts of one surface, SGM carries the edge's own
+#: disparity, and a walker's head or a gantry's sign hangs together by it (``_add_fringe``).
+SLOT_PX, SLOT_STEP_PX = 24, 1.0
 
 
 def sky_mask(
@@ -43,9 +48,11 @@ def sky_mask(
     colour: Image | None = None,
     gap_colour: float = 0.0,
     disparity: npt.NDArray[np.float32] | None = None,
+    fringe_px: int = 0,
 ) -> npt.NDArray[np.bool_]:
     """Pixels joined to the top row through pixels whose mean |gradient| (window square) is under ``max_gradient``;
-    with ``colour`` (the RGB image) and ``gap_colour`` > 0, also flat regions of the open sky's colour (above)."""
+    with ``colour`` (the RGB image) and ``gap_colour`` > 0, also flat regions of the open sky's colour (above),
+    and with ``fringe_px`` > 0 the pixels of its colour that far around the open sky (``_add_fringe``)."""
     grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
     gradient = np.abs(cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3)) + np.abs(cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3))
     flat = (cv2.blur(gradient, (window, window)) < np.float32(max_gradient)).astype(np.uint8)
@@ -60,7 +67,86 @@ def sky_mask(
         gaps = _gaps(labels, stats, is_sky, sky, colour, gap_colour, disparity)
         if gaps.any():
             _add_grown(sky, labels, stats, gaps, colour, gap_colour, window // 2 + 1)
+        if fringe_px > 0:
+            _add_fringe(sky, colour, gap_colour, fringe_px, disparity)
     return sky
+
+
+def _add_fringe(
+    sky: npt.NDArray[np.bool_],
+    colour: Image,
+    tolerance: float,
+    reach: int,
+    disparity: npt.NDArray[np.float32] | None = None,
+) -> None:
+    """Add to ``sky`` the pixels up to ``reach`` pixels around it within ``tolerance`` grey levels (every
+    channel) of the sky's mean colour on their row, where they lie in a slot (``SLOT_PX``).
+
+    Flatness is judged over a window, so the columns of sky beside a building's edge or a pole are
+    not flat and stayed out; they hold the disparity SGM carried in from the edge, and where two
+    edges at two depths face each other across a narrow slot of sky, a value between them:
+    synthetic `slope` seed 7's sky between a building's corner and a pole behind it, and between a
+    wall's end and a post, became clusters 2 m up, in the air (docs/results/voxel.md, "Session
+    69"). Taken everywhere, the fringe cost walkers their heads against the sky and split gantries.
+    The sky's colour changes from the top of the image to the horizon, so each row is held to its
+    own.
+    """
+    rows = np.flatnonzero(sky.any(axis=1))
+    if not rows.size:
+        return
+    top, bottom = max(int(rows[0]) - reach, 0), min(int(rows[-1]) + reach + 1, sky.shape[0])
+    band, patch = sky[top:bottom], colour[top:bottom]
+    near = cv2.dilate(band.view(np.uint8), np.ones((3, 3), np.uint8), iterations=reach).view(bool) & ~band
+    ys, xs = np.nonzero(near)
+    if not ys.size:
+        return
+    count = band.sum(axis=1, dtype=np.float32)
+    with np.errstate(invalid="ignore", divide="ignore"):  # rows with no sky: NaN, alike to nothing
+        reference = np.einsum("rc,rck->rk", band.astype(np.float32), patch.astype(np.float32)) / count[:, None]
+    # the rows just below the open sky's lowest: its lowest row's colour
+    reference = np.where(np.isfinite(reference), reference, _nearest_row(reference))
+    alike = np.all(np.abs(patch[ys, xs] - reference[ys]) <= tolerance, axis=1)
+    fringe = np.zeros_like(band)
+    fringe[ys[alike], xs[alike]] = True
+    band |= fringe & _in_slot(band | fringe, SLOT_PX, None if disparity is None else disparity[top:bottom])
+
+
+def _in_slot(
+    mask: npt.NDArray[np.bool_], width: int, disparity: npt.NDArray[np.float32] | None = None
+) -> npt.NDArray[np.bool_]:
+    """Pixels of ``mask`` in a run along their row of at most ``width`` pixels, with no end at an image side
+    (and with ``disparity``, whose two bounding pixels are not one depth; one with no value is another)."""
+    h, w = mask.shape
+    starts = mask.copy()
+    starts[:, 1:] &= ~mask[:, :-1]
+    ids = np.cumsum(starts.ravel()).reshape(h, w) * mask
+    lengths = np.bincount(ids.ravel())
+    lengths[0] = 0
+    open_ends = np.unique(np.concatenate([ids[:, 0], ids[:, -1]]))
+    short = lengths <= width
+    short[open_ends] = False
+    short[0] = False
+    if disparity is not None:
+        rows, first = np.nonzero(starts)
+        last = first + lengths[1:] - 1
+        left = disparity[rows, np.clip(first - 1, 0, w - 1)]
+        right = disparity[rows, np.clip(last + 1, 0, w - 1)]
+        with np.errstate(invalid="ignore"):
+            one = np.abs(left - right) <= SLOT_STEP_PX
+        short[1:] &= ~one
+    return short[ids]
+
+
+def _nearest_row(reference: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+    """Each row's value from the nearest row that has one (NaN where none has)."""
+    known = np.flatnonzero(np.isfinite(reference[:, 0]))
+    if not known.size:
+        return reference
+    index = np.searchsorted(known, np.arange(len(reference)))
+    below, above = known[np.clip(index, 0, len(known) - 1)], known[np.clip(index - 1, 0, len(known) - 1)]
+    rows = np.arange(len(reference))
+    nearest = np.where(np.abs(below - rows) <= np.abs(rows - above), below, above)
+    return reference[nearest]
 
 
 #: a ring this wide (pixels) around a region is its border; its disparities' 10th and 90th
