@@ -79,7 +79,9 @@ class StereoConfig:
     sky_window_px: int = 5  # flat pixels (this square) joined to the top row get no disparity (sky.py); 0 = off
     sky_max_gradient: float = 8.0  # ... flat: mean |grey x-gradient| + |y-gradient| under this
     sky_gap_colour: float = 20.0  # ... and flat regions of its colour (grey levels) under a gantry (sky.py); 0 = off
-    sky_fringe_px: int = 0  # ... and pixels of its colour this near the open sky, beside edges (sky.py); 0 = off
+    # ... and pixels of its colour this near the open sky in a slot between two depths (sky.py); 0 = off. 2 since
+    # session 69: slope-s7's phantom clusters 0.125 -> 0.075 a frame, unseen seeds unchanged (docs/results/voxel.md)
+    sky_fringe_px: int = 2
     contrast_span: float = 160.0  # a dimmer pair (1-99 % grey levels) gets P1, P2 as if it spanned this; 0: off
     pre_filter_cap: int = 63  # lower caps gain 0.3 points of D1 but lose sub-pixel precision
     mode: str = "3way"  # 3way | sgbm | hh | hh4
