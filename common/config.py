@@ -82,6 +82,9 @@ class StereoConfig:
     # ... and pixels of its colour this near the open sky in a slot between two depths (sky.py); 0 = off. 2 since
     # session 69: slope-s7's phantom clusters 0.125 -> 0.075 a frame, unseen seeds unchanged (docs/results/voxel.md)
     sky_fringe_px: int = 2
+    # ... and pixels of its colour this far under the open sky holding another depth than what lies below them
+    # (sky.py); 0 = off. 4 since session 70: hanging's sky over the horizon no longer hangs under its signs
+    sky_underside_px: int = 4
     contrast_span: float = 160.0  # a dimmer pair (1-99 % grey levels) gets P1, P2 as if it spanned this; 0: off
     pre_filter_cap: int = 63  # lower caps gain 0.3 points of D1 but lose sub-pixel precision
     mode: str = "3way"  # 3way | sgbm | hh | hh4

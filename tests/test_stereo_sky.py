@@ -124,3 +124,71 @@ def test_a_fringe_of_another_colour_keeps_its_points() -> None:
     fringe = sky_mask(image, 5, 8.0, image, 10.0, disparity, fringe_px=3)
     assert not fringe[12:36, 90:92].any()
     assert fringe[12:36, 93:100].all()  # the rest of the slot as before
+
+
+def _horizon() -> tuple[np.ndarray, np.ndarray]:
+    """Rows 0-39 a noisy flat sky over textured ground, a textured post (columns 70-89) rising to row 10;
+    the ground far (2 px of disparity), the post near (10). Along the rows just above the horizon SGM
+    carried the post's 10 sideways (columns 40-119); farther out they hold the horizon's own 2, and
+    above the post's top its own 10 (a walker's head)."""
+    rng = np.random.default_rng(0)
+    image = blob_texture(rng, HEIGHT, WIDTH).astype(np.float32)
+    image[:40] = 200.0 + rng.normal(0.0, 1.0, (40, WIDTH, 3))
+    image[10:40, 70:90] = blob_texture(rng, 30, 20)
+    disparity = np.full((HEIGHT, WIDTH), 2.0, dtype=np.float32)
+    disparity[:40] = 2.0
+    disparity[30:40, 40:120] = 10.0
+    disparity[:, 70:90] = 10.0
+    return image.clip(0, 255).astype(np.uint8), disparity
+
+
+def test_the_sky_over_the_horizon_holding_a_post_s_depth_is_sky_and_over_a_head_it_is_not() -> None:
+    image, disparity = _horizon()
+    plain = sky_mask(image, 5, 8.0, image, 10.0, disparity, fringe_px=2)
+    assert not plain[38:40, 40:66].any() and not plain[38:40, 94:120].any()  # unflat: the horizon's edge
+    under = sky_mask(image, 5, 8.0, image, 10.0, disparity, fringe_px=2, underside_px=4)
+    assert under[36:40, 40:66].all() and under[36:40, 94:120].all()
+    assert not under[38:40, :36].any() and not under[38:40, 124:].any()  # the horizon's own depth
+    grown = under & ~plain
+    assert not under[10:40, 70:90].any() and not grown[:10, 66:94].any()  # the post, and the rows over its top
+    assert not under[40:].any() and (image[grown] > 190).all()
+
+
+def _narrow_gap(post_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rows 0-59 a noisy flat sky; a textured bar (rows 20-29, columns 20-139) on a post (columns
+    20-29), and a thin pole at columns 56-59 behind it, at ``post_px`` against the bar's 11.5: a gap
+    of sky 26 columns wide between post and pole, into which SGM carried each side's disparity, over
+    ground at the bar's depth."""
+    rng = np.random.default_rng(1)
+    image = blob_texture(rng, HEIGHT, WIDTH).astype(np.float32)
+    image[:60] = 200.0 + rng.normal(0.0, 1.0, (60, WIDTH, 3))
+    image[20:30, 20:140] = blob_texture(rng, 10, 120)
+    image[20:60, 20:30] = blob_texture(rng, 40, 10)
+    image[20:60, 56:60] = blob_texture(rng, 40, 4)
+    disparity = np.full((HEIGHT, WIDTH), 11.0, dtype=np.float32)  # the ground at the gantry's foot
+    disparity[:60] = np.nan
+    disparity[20:30, 20:140] = disparity[20:60, 20:43] = 11.5
+    disparity[30:60, 43:60] = post_px
+    return image.clip(0, 255).astype(np.uint8), disparity
+
+
+def test_a_narrow_gap_between_two_depths_is_sky_though_its_border_seems_one_surface() -> None:
+    """The ring test takes 11.5 and 10.0 px for one surface seen askew; row by row, the gap's two ends differ."""
+    image, disparity = _narrow_gap(10.0)
+    sky = sky_mask(image, 5, 8.0, image, 10.0, disparity)
+    assert sky[33:57, 33:53].mean() > 0.97
+    assert not sky[22:28, 36:124].any() and not sky[22:60, 21:29].any()  # the bar and the post
+    image, disparity = _narrow_gap(11.5)  # the pole as near as the post: one surface
+    assert not sky_mask(image, 5, 8.0, image, 10.0, disparity)[33:57, 33:53].any()
+
+
+def test_a_gap_ending_a_row_or_two_below_the_open_sky_is_sky() -> None:
+    """The window that judges flatness ends the open sky a little higher where texture meets it."""
+    image = _gantry()
+    image[56:60, :20] = blob_texture(np.random.default_rng(4), 4, 20)
+    image[56:60, 140:] = blob_texture(np.random.default_rng(5), 4, 20)
+    disparity = np.full((HEIGHT, WIDTH), 2.0, dtype=np.float32)
+    disparity[20:60, 20:140] = 10.0
+    disparity[45:60, 30:130] = 2.0
+    sky = sky_mask(image, 5, 8.0, image, 10.0, disparity)
+    assert sky[36:56, 36:124].mean() > 0.97

@@ -91,7 +91,7 @@ class MultiResolutionMatcher:
         hidden_fill: tuple[int, int] = (0, 0),
         min_texture: float = 0.0,
         subpixel: SubpixelParams | None = None,
-        sky: tuple[int, float, float, int] = (0, 0.0, 0.0, 0),
+        sky: tuple[int, float, float, int, int] = (0, 0.0, 0.0, 0, 0),
         contrast_span: float = 0.0,
         upsample_x: int = 1,
     ) -> None:
@@ -108,7 +108,7 @@ class MultiResolutionMatcher:
         self.hidden_colour_step, self.hidden_max_px = hidden_fill
         self.min_texture = min_texture
         self.subpixel = subpixel
-        self.sky_window_px, self.sky_max_gradient, self.sky_gap_colour, self.sky_fringe_px = sky
+        self.sky_window_px, self.sky_max_gradient, self.sky_gap_colour, self.sky_fringe_px, self.sky_underside_px = sky
         self.contrast_span = contrast_span
         if upsample_x < 1:
             raise ConfigError(f"stereo.upsample_x must be 1 or more, not {upsample_x}")
@@ -171,10 +171,10 @@ class MultiResolutionMatcher:
                 max_step_px=cfg.subpixel_max_step_px,
                 max_disparity_px=cfg.subpixel_max_disparity_px,
             )
+        sky = (cfg.sky_window_px, cfg.sky_max_gradient, cfg.sky_gap_colour, cfg.sky_fringe_px, cfg.sky_underside_px)
         return cls(
             fine, coarse, cfg.lr_check, cfg.lr_max_diff_px, cfg.fill_support_px, cfg.color_matching, hidden,
-            cfg.min_texture, subpixel, (cfg.sky_window_px, cfg.sky_max_gradient, cfg.sky_gap_colour, cfg.sky_fringe_px),
-            cfg.contrast_span, cfg.upsample_x,
+            cfg.min_texture, subpixel, sky, cfg.contrast_span, cfg.upsample_x,
         )  # fmt: skip
 
     def match(self, left_rgb: Image, right_rgb: Image) -> DisparityMap:
@@ -321,7 +321,7 @@ class MultiResolutionMatcher:
             return disparity
         sky = sky_mask(
             left, self.sky_window_px, self.sky_max_gradient, left_rgb, self.sky_gap_colour, disparity,
-            fringe_px=self.sky_fringe_px,
+            fringe_px=self.sky_fringe_px, underside_px=self.sky_underside_px,
         )  # fmt: skip
         return np.where(sky, np.float32(np.nan), disparity).astype(np.float32, copy=False)
 

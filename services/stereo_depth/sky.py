@@ -49,10 +49,13 @@ def sky_mask(
     gap_colour: float = 0.0,
     disparity: npt.NDArray[np.float32] | None = None,
     fringe_px: int = 0,
+    underside_px: int = 0,
 ) -> npt.NDArray[np.bool_]:
     """Pixels joined to the top row through pixels whose mean |gradient| (window square) is under ``max_gradient``;
     with ``colour`` (the RGB image) and ``gap_colour`` > 0, also flat regions of the open sky's colour (above),
-    and with ``fringe_px`` > 0 the pixels of its colour that far around the open sky (``_add_fringe``)."""
+    with ``fringe_px`` > 0 the pixels of its colour that far around the open sky (``_add_fringe``), and with
+    ``underside_px`` > 0 and ``disparity`` those that far under it holding another depth than what lies
+    below them (``_add_underside``)."""
     grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
     gradient = np.abs(cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3)) + np.abs(cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3))
     flat = (cv2.blur(gradient, (window, window)) < np.float32(max_gradient)).astype(np.uint8)
@@ -64,11 +67,13 @@ def sky_mask(
     is_sky[top] = True
     sky = is_sky[labels]
     if gap_colour > 0.0 and colour is not None and colour.ndim == 3:
-        gaps = _gaps(labels, stats, is_sky, sky, colour, gap_colour, disparity)
+        gaps = _gaps(labels, stats, is_sky, sky, colour, gap_colour, disparity, window)
         if gaps.any():
             _add_grown(sky, labels, stats, gaps, colour, gap_colour, window // 2 + 1)
         if fringe_px > 0:
             _add_fringe(sky, colour, gap_colour, fringe_px, disparity)
+        if underside_px > 0 and disparity is not None:
+            _add_underside(sky, colour, gap_colour, underside_px, disparity)
     return sky
 
 
@@ -109,6 +114,45 @@ def _add_fringe(
     fringe = np.zeros_like(band)
     fringe[ys[alike], xs[alike]] = True
     band |= fringe & _in_slot(band | fringe, SLOT_PX, None if disparity is None else disparity[top:bottom])
+
+
+def _add_underside(
+    sky: npt.NDArray[np.bool_], colour: Image, tolerance: float, reach: int, disparity: npt.NDArray[np.float32]
+) -> None:
+    """Add to ``sky`` the pixels up to ``reach`` rows under it, joined to it down their column through
+    pixels of the sky's colour on their row (within ``tolerance``), whose disparity is not that of the
+    first other pixel below them (within ``SLOT_STEP_PX``; a hole in the open sky has none).
+
+    The horizon is an edge along the row: the rows of sky just above it are not flat over the
+    window, and along them there is nothing to match, so SGM carries a post's disparity sideways
+    into them, 50 px and more: synthetic `hanging` seeds 9 and 10 hung them under their signs as
+    a second cluster, 1.4-1.9 m up over the lane. Above a walker's head, a car's roof or a bar, the
+    same rows hold what lies below them, and stay.
+    """
+    rows = np.flatnonzero(sky.any(axis=1))
+    if not rows.size:
+        return
+    top, bottom = int(rows[0]), min(int(rows[-1]) + reach + 2, sky.shape[0])
+    band, patch, values = sky[top:bottom], colour[top:bottom].astype(np.float32), disparity[top:bottom]
+    count = band.sum(axis=1, dtype=np.float32)
+    with np.errstate(invalid="ignore", divide="ignore"):  # rows with no sky: NaN, alike to nothing
+        reference = np.einsum("rc,rck->rk", band.astype(np.float32), patch) / count[:, None]
+    reference = np.where(np.isfinite(reference), reference, _nearest_row(reference))
+    alike = np.all(np.abs(patch - reference[:, None, :]) <= tolerance, axis=2) & ~band
+    under = np.zeros_like(band)
+    step = band
+    for _ in range(reach):
+        step = np.vstack([np.zeros_like(step[:1]), step[:-1] & alike[1:]])
+        under |= step
+    if not under.any():
+        return
+    # the disparity of the first pixel below each that is neither under the sky nor the sky
+    below = np.vstack([np.where(band[1:], np.float32(np.nan), values[1:]), np.full_like(values[:1], np.nan)])
+    for _ in range(reach):
+        below[:-1] = np.where(under[1:], below[1:], below[:-1])
+    with np.errstate(invalid="ignore"):
+        same = np.abs(values - below) <= SLOT_STEP_PX
+    band |= under & ~same
 
 
 def _in_slot(
@@ -170,6 +214,42 @@ def _one_depth_around(
     return bool(high <= ONE_DEPTH_RATIO * low + 0.5)
 
 
+#: a gap whose border seems one surface is still sky where most of its rows are runs of the sky's
+#: colour at most this wide (pixels) between two depths (``_between_two_depths``).
+GAP_SLOT_PX = 40
+
+
+def _between_two_depths(
+    labels: npt.NDArray[np.int32],
+    c: int,
+    box: npt.NDArray[np.int32],
+    colour: Image,
+    mine: npt.NDArray[np.float64],
+    tolerance: float,
+    disparity: npt.NDArray[np.float32],
+    reach: int = 3,
+) -> bool:
+    """Whether most rows of component ``c`` (box: x, y, w, h) lie in a slot (``_in_slot``, ``GAP_SLOT_PX``):
+    a run of its colour, the unflat pixels beside it within ``reach`` included, whose two ends differ in depth.
+
+    The ring test (``_one_depth_around``) takes percentiles over the whole border with a ratio
+    loose enough for a facade seen askew, so a narrow gap between a gantry's post and a pole 3 m
+    behind it (11.4 and 10.0 px at 20 m) passes for one surface; and the ring is mostly the gap's own
+    unflat fringe, which holds what SGM carried in. Row by row the two ends still tell: synthetic
+    `hanging` seed 17's sky between a barrier's post and a pole hung under the barrier as 15-25
+    voxels over the lane (docs/results/voxel.md, "Session 70").
+    """
+    x, y, w, h = (int(v) for v in box[0:4])
+    margin = reach + 1  # the pixels that bound a run lie inside the patch
+    y0, x0 = max(y - margin, 0), max(x - margin, 0)
+    own = labels[y0 : y + h + margin, x0 : x + w + margin] == c
+    patch = colour[y0 : y + h + margin, x0 : x + w + margin].astype(np.float32)
+    alike = np.all(np.abs(patch - mine.astype(np.float32)) <= tolerance, axis=2)
+    near = cv2.dilate(own.view(np.uint8), np.ones((3, 3), np.uint8), iterations=reach).view(bool)
+    slot = _in_slot(own | (near & alike), GAP_SLOT_PX, disparity[y0 : y + h + margin, x0 : x + w + margin])
+    return bool(slot[own].mean() >= 0.5)
+
+
 def _add_grown(
     sky: npt.NDArray[np.bool_],
     labels: npt.NDArray[np.int32],
@@ -204,8 +284,12 @@ def _gaps(
     colour: Image,
     tolerance: float,
     disparity: npt.NDArray[np.float32] | None = None,
+    slack: int = 0,
 ) -> npt.NDArray[np.bool_]:
-    """Which flat components not joined to the top row have the open sky's colour, within its rows.
+    """Which flat components not joined to the top row have the open sky's colour, within its rows
+    (``slack`` rows lower at most: the window that judges flatness blurs the horizon's edge upward
+    by as much on one column as on the next, so the open sky may end a row or two higher than a gap
+    beside it; hanging seed 9 had a 4,422-pixel gap under a sign end one row lower).
 
     With ``disparity``, one more test: the region's surroundings must disagree on its depth. A
     flat region takes its disparity from its border; under a bar that border is the bar above and
@@ -221,7 +305,7 @@ def _gaps(
         return out
     top = stats[:, cv2.CC_STAT_TOP]
     bottom = top + stats[:, cv2.CC_STAT_HEIGHT]  # one past the lowest row
-    candidates = ~is_sky & (stats[:, cv2.CC_STAT_AREA] >= MIN_GAP_PX) & (bottom <= sky_rows.max() + 1)
+    candidates = ~is_sky & (stats[:, cv2.CC_STAT_AREA] >= MIN_GAP_PX) & (bottom <= sky_rows.max() + 1 + slack)
     candidates[0] = False  # label 0 is every pixel that is not flat
     if not candidates.any():
         return out
@@ -234,7 +318,10 @@ def _gaps(
             continue
         mine = np.array(cv2.mean(colour[y : y + h, x : x + w], mask=own)[0:3])
         theirs = np.array(cv2.mean(colour[y : y + h], mask=open_rows)[0:3])
-        out[c] = bool(np.all(np.abs(mine - theirs) <= tolerance)) and (
-            disparity is None or not _one_depth_around(labels, c, stats[c], disparity)
+        alike = bool(np.all(np.abs(mine - theirs) <= tolerance))
+        out[c] = alike and (
+            disparity is None
+            or not _one_depth_around(labels, c, stats[c], disparity)
+            or _between_two_depths(labels, c, stats[c], colour, mine, tolerance, disparity)
         )
     return out
