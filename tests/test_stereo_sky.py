@@ -192,3 +192,12 @@ def test_a_gap_ending_a_row_or_two_below_the_open_sky_is_sky() -> None:
     disparity[45:60, 30:130] = 2.0
     sky = sky_mask(image, 5, 8.0, image, 10.0, disparity)
     assert sky[36:56, 36:124].mean() > 0.97
+
+
+def test_a_gap_is_judged_by_what_lies_beyond_its_fringe() -> None:
+    """SGM carried the bar's disparity into the whole gap, its unflat fringe too (the 3 px beside each
+    edge); only past the fringe, at the horizon under it, does another depth show."""
+    image = _gantry()
+    disparity = np.full((HEIGHT, WIDTH), 2.0, dtype=np.float32)  # the far road and horizon
+    disparity[20:60, 20:140] = 10.0  # the gantry, and the gap under it to the horizon
+    assert sky_mask(image, 5, 8.0, image, 10.0, disparity)[36:56, 36:124].mean() > 0.97

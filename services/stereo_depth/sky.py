@@ -194,8 +194,10 @@ def _nearest_row(reference: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
 
 
 #: a ring this wide (pixels) around a region is its border; its disparities' 10th and 90th
-#: percentiles within this ratio (plus half a pixel) are one surface's.
-RING_PX, ONE_DEPTH_RATIO = 3, 1.25
+#: percentiles within this ratio (plus half a pixel) are one surface's. The ring must reach past the
+#: region's own unflat fringe (up to 3 px with a 5 px window), which holds what SGM carried in from one
+#: side: 3 px wide, hanging seed 13's sky under a sign read as one surface with the sign (session 70).
+RING_PX, ONE_DEPTH_RATIO = 5, 1.25
 
 
 def _one_depth_around(
