@@ -105,11 +105,7 @@ def _add_fringe(
     ys, xs = np.nonzero(near)
     if not ys.size:
         return
-    count = band.sum(axis=1, dtype=np.float32)
-    with np.errstate(invalid="ignore", divide="ignore"):  # rows with no sky: NaN, alike to nothing
-        reference = np.einsum("rc,rck->rk", band.astype(np.float32), patch.astype(np.float32)) / count[:, None]
-    # the rows just below the open sky's lowest: its lowest row's colour
-    reference = np.where(np.isfinite(reference), reference, _nearest_row(reference))
+    reference = _row_colours(band, patch)
     alike = np.all(np.abs(patch[ys, xs] - reference[ys]) <= tolerance, axis=1)
     fringe = np.zeros_like(band)
     fringe[ys[alike], xs[alike]] = True
@@ -134,11 +130,7 @@ def _add_underside(
         return
     top, bottom = int(rows[0]), min(int(rows[-1]) + reach + 2, sky.shape[0])
     band, patch, values = sky[top:bottom], colour[top:bottom].astype(np.float32), disparity[top:bottom]
-    count = band.sum(axis=1, dtype=np.float32)
-    with np.errstate(invalid="ignore", divide="ignore"):  # rows with no sky: NaN, alike to nothing
-        reference = np.einsum("rc,rck->rk", band.astype(np.float32), patch) / count[:, None]
-    reference = np.where(np.isfinite(reference), reference, _nearest_row(reference))
-    alike = np.all(np.abs(patch - reference[:, None, :]) <= tolerance, axis=2) & ~band
+    alike = np.all(np.abs(patch - _row_colours(band, patch)[:, None, :]) <= tolerance, axis=2) & ~band
     under = np.zeros_like(band)
     step = band
     for _ in range(reach):
@@ -179,6 +171,16 @@ def _in_slot(
             one = np.abs(left - right) <= SLOT_STEP_PX
         short[1:] &= ~one
     return short[ids]
+
+
+def _row_colours(band: npt.NDArray[np.bool_], patch: Image) -> npt.NDArray[np.float32]:
+    """The open sky's mean colour on each row of ``band``; a row with none takes the nearest row's (the
+    rows just under the sky's lowest, its lowest row's). The sky's colour changes from the top of the
+    image to the horizon, so each row is held to its own."""
+    count = band.sum(axis=1, dtype=np.float32)
+    with np.errstate(invalid="ignore", divide="ignore"):  # rows with no sky: NaN until filled
+        reference = np.einsum("rc,rck->rk", band.astype(np.float32), patch.astype(np.float32)) / count[:, None]
+    return np.where(np.isfinite(reference), reference, _nearest_row(reference))
 
 
 def _nearest_row(reference: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
