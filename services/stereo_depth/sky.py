@@ -129,22 +129,38 @@ def _add_underside(
     if not rows.size:
         return
     top, bottom = int(rows[0]), min(int(rows[-1]) + reach + 2, sky.shape[0])
-    band, patch, values = sky[top:bottom], colour[top:bottom].astype(np.float32), disparity[top:bottom]
-    alike = np.all(np.abs(patch - _row_colours(band, patch)[:, None, :]) <= tolerance, axis=2) & ~band
+    band, patch, values = sky[top:bottom], colour[top:bottom], disparity[top:bottom]
+    # the colour is read only where a pixel could be joined: within reach rows under the sky
+    near = np.zeros_like(band)
+    for k in range(1, reach + 1):
+        near[k:] |= band[:-k]
+    near &= ~band
+    ys, xs = np.nonzero(near)
+    if not ys.size:
+        return
+    alike = np.zeros_like(band)
+    alike[ys, xs] = np.all(np.abs(patch[ys, xs] - _row_colours(band, patch)[ys]) <= tolerance, axis=1)
     under = np.zeros_like(band)
     step = band
     for _ in range(reach):
         step = np.vstack([np.zeros_like(step[:1]), step[:-1] & alike[1:]])
         under |= step
-    if not under.any():
+    ys, xs = np.nonzero(under)
+    if not ys.size:
         return
-    # the disparity of the first pixel below each that is neither under the sky nor the sky
-    below = np.vstack([np.where(band[1:], np.float32(np.nan), values[1:]), np.full_like(values[:1], np.nan)])
-    for _ in range(reach):
-        below[:-1] = np.where(under[1:], below[1:], below[:-1])
+    # the disparity of the first pixel below each that is neither under the sky nor the sky (a run of
+    # them is at most ``reach`` long)
+    below = np.full(ys.size, np.nan, dtype=np.float32)
+    open_ = np.ones(ys.size, dtype=bool)
+    for k in range(1, reach + 2):
+        row = np.minimum(ys + k, len(band) - 1)
+        end = open_ & (~under[row, xs] | (ys + k >= len(band)))
+        inside = end & (ys + k < len(band)) & ~band[row, xs]
+        below[inside] = values[row[inside], xs[inside]]
+        open_ &= ~end
     with np.errstate(invalid="ignore"):
-        same = np.abs(values - below) <= SLOT_STEP_PX
-    band |= under & ~same
+        same = np.abs(values[ys, xs] - below) <= SLOT_STEP_PX
+    band[ys[~same], xs[~same]] = True
 
 
 def _in_slot(
