@@ -136,7 +136,6 @@ def _horizon() -> tuple[np.ndarray, np.ndarray]:
     image[:40] = 200.0 + rng.normal(0.0, 1.0, (40, WIDTH, 3))
     image[10:40, 70:90] = blob_texture(rng, 30, 20)
     disparity = np.full((HEIGHT, WIDTH), 2.0, dtype=np.float32)
-    disparity[:40] = 2.0
     disparity[30:40, 40:120] = 10.0
     disparity[:, 70:90] = 10.0
     return image.clip(0, 255).astype(np.uint8), disparity
@@ -154,9 +153,9 @@ def test_the_sky_over_the_horizon_holding_a_post_s_depth_is_sky_and_over_a_head_
     assert not under[40:].any() and (image[grown] > 190).all()
 
 
-def _narrow_gap(post_px: float) -> tuple[np.ndarray, np.ndarray]:
+def _narrow_gap(pole_px: float) -> tuple[np.ndarray, np.ndarray]:
     """Rows 0-59 a noisy flat sky; a textured bar (rows 20-29, columns 20-139) on a post (columns
-    20-29), and a thin pole at columns 56-59 behind it, at ``post_px`` against the bar's 11.5: a gap
+    20-29), and a thin pole at columns 56-59 behind it, at ``pole_px`` against the bar's 11.5: a gap
     of sky 26 columns wide between post and pole, into which SGM carried each side's disparity, over
     ground at the bar's depth."""
     rng = np.random.default_rng(1)
@@ -168,7 +167,7 @@ def _narrow_gap(post_px: float) -> tuple[np.ndarray, np.ndarray]:
     disparity = np.full((HEIGHT, WIDTH), 11.0, dtype=np.float32)  # the ground at the gantry's foot
     disparity[:60] = np.nan
     disparity[20:30, 20:140] = disparity[20:60, 20:43] = 11.5
-    disparity[30:60, 43:60] = post_px
+    disparity[30:60, 43:60] = pole_px
     return image.clip(0, 255).astype(np.uint8), disparity
 
 

@@ -151,13 +151,13 @@ def _add_underside(
     # the disparity of the first pixel below each that is neither under the sky nor the sky (a run of
     # them is at most ``reach`` long)
     below = np.full(ys.size, np.nan, dtype=np.float32)
-    open_ = np.ones(ys.size, dtype=bool)
+    searching = np.ones(ys.size, dtype=bool)
     for k in range(1, reach + 2):
         row = np.minimum(ys + k, len(band) - 1)
-        end = open_ & (~under[row, xs] | (ys + k >= len(band)))
+        end = searching & (~under[row, xs] | (ys + k >= len(band)))
         inside = end & (ys + k < len(band)) & ~band[row, xs]
         below[inside] = values[row[inside], xs[inside]]
-        open_ &= ~end
+        searching &= ~end
     with np.errstate(invalid="ignore"):
         same = np.abs(values[ys, xs] - below) <= SLOT_STEP_PX
     band[ys[~same], xs[~same]] = True
@@ -307,9 +307,9 @@ def _gaps(
     slack: int = 0,
 ) -> npt.NDArray[np.bool_]:
     """Which flat components not joined to the top row have the open sky's colour, within its rows
-    (``slack`` rows lower at most: the window that judges flatness blurs the horizon's edge upward
-    by as much on one column as on the next, so the open sky may end a row or two higher than a gap
-    beside it; hanging seed 9 had a 4,422-pixel gap under a sign end one row lower).
+    (``slack`` rows lower at most: the open sky ends where the flatness window first meets the
+    horizon's edge or what stands on it, a row or two higher in one place than in another; hanging
+    seed 9's 4,422-pixel gap under a sign ended one row lower than the open sky).
 
     With ``disparity``, one more test: the region's surroundings must disagree on its depth. A
     flat region takes its disparity from its border; under a bar that border is the bar above and
