@@ -93,8 +93,6 @@ def _add_fringe(
     synthetic `slope` seed 7's sky between a building's corner and a pole behind it, and between a
     wall's end and a post, became clusters 2 m up, in the air (docs/results/voxel.md, "Session
     69"). Taken everywhere, the fringe cost walkers their heads against the sky and split gantries.
-    The sky's colour changes from the top of the image to the horizon, so each row is held to its
-    own.
     """
     rows = np.flatnonzero(sky.any(axis=1))
     if not rows.size:
@@ -247,7 +245,7 @@ def _between_two_depths(
     mine: npt.NDArray[np.float64],
     tolerance: float,
     disparity: npt.NDArray[np.float32],
-    reach: int = 3,
+    reach: int,
 ) -> bool:
     """Whether most rows of component ``c`` (box: x, y, w, h) lie in a slot (``_in_slot``, ``GAP_SLOT_PX``):
     a run of its colour, the unflat pixels beside it within ``reach`` included, whose two ends differ in depth.
@@ -256,8 +254,8 @@ def _between_two_depths(
     loose enough for a facade seen askew, so a narrow gap between a gantry's post and a pole 3 m
     behind it (11.4 and 10.0 px at 20 m) passes for one surface; and the ring is mostly the gap's own
     unflat fringe, which holds what SGM carried in. Row by row the two ends still tell: synthetic
-    `hanging` seed 17's sky between a barrier's post and a pole hung under the barrier as 15-25
-    voxels over the lane (docs/results/voxel.md, "Session 70").
+    `hanging` seed 17's sky between a barrier's post and a pole hung under the barrier, 2-37 voxels
+    a frame over the lane (docs/results/voxel.md, "Session 70").
     """
     x, y, w, h = (int(v) for v in box[0:4])
     margin = reach + 1  # the pixels that bound a run lie inside the patch
@@ -304,10 +302,10 @@ def _gaps(
     colour: Image,
     tolerance: float,
     disparity: npt.NDArray[np.float32] | None = None,
-    slack: int = 0,
+    window: int = 0,
 ) -> npt.NDArray[np.bool_]:
     """Which flat components not joined to the top row have the open sky's colour, within its rows
-    (``slack`` rows lower at most: the open sky ends where the flatness window first meets the
+    (``window`` rows lower at most, the flatness window's: the open sky ends where the flatness window first meets the
     horizon's edge or what stands on it, a row or two higher in one place than in another; hanging
     seed 9's 4,422-pixel gap under a sign ended one row lower than the open sky).
 
@@ -325,7 +323,7 @@ def _gaps(
         return out
     top = stats[:, cv2.CC_STAT_TOP]
     bottom = top + stats[:, cv2.CC_STAT_HEIGHT]  # one past the lowest row
-    candidates = ~is_sky & (stats[:, cv2.CC_STAT_AREA] >= MIN_GAP_PX) & (bottom <= sky_rows.max() + 1 + slack)
+    candidates = ~is_sky & (stats[:, cv2.CC_STAT_AREA] >= MIN_GAP_PX) & (bottom <= sky_rows.max() + 1 + window)
     candidates[0] = False  # label 0 is every pixel that is not flat
     if not candidates.any():
         return out
@@ -342,6 +340,6 @@ def _gaps(
         out[c] = alike and (
             disparity is None
             or not _one_depth_around(labels, c, stats[c], disparity)
-            or _between_two_depths(labels, c, stats[c], colour, mine, tolerance, disparity)
+            or _between_two_depths(labels, c, stats[c], colour, mine, tolerance, disparity, window // 2 + 1)
         )
     return out
