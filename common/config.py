@@ -305,6 +305,16 @@ class TrackerConfig:
     corner_lead_sigmas: float = 3.0
     corner_lead_min_mps: float = 2.0  # ... on a piece whose corners read this or more (1.0: more false frames)
     corner_lead_samples: int = 6  # ... from the corners followed this many frames (5, 7 alike)
+    # a group of this many corners or more on a track moving one way across the line of sight at corner_mover_mps
+    # (their median), within corner_mover_tol_mps of it, each at corner_mover_from_mps or more, lying within
+    # corner_mover_width_m across it, turns the track moving while its filter's speed is over corner_mover_filter_mps
+    # (a walker sharing a wall's cluster; keypoint_motion.py); 0: off
+    corner_mover_count: int = 8
+    corner_mover_mps: float = 0.4
+    corner_mover_from_mps: float = 0.35
+    corner_mover_tol_mps: float = 0.25
+    corner_mover_width_m: float = 0.75
+    corner_mover_filter_mps: float = 0.5
     # moving or stationary judged by trees (services/tracker/motion_model.py): "builtin" (trained on tuning
     # runs), a model file, or "" for the rule (labelling.py); a track turns moving when their chance clears
     # motion_model_on and stays moving while it clears motion_model_off

@@ -58,6 +58,7 @@ class CornerVelocity:
     count: NDArray
     across: NDArray
     across_sigma: NDArray
+    mover: NDArray | None = None  # (n, 3): the largest group moving across the line of sight (``_movers``)
 
 
 class CornerHistory:
@@ -278,24 +279,28 @@ def _fit_lines(fit: NDArray, rows: NDArray) -> tuple[NDArray, NDArray]:
 
 def corner_velocity(
     history: CornerHistory, voxels: NDArray, counts: NDArray, slot: NDArray, pieces: int, edge: float, min_samples: int,
-    eye: NDArray, across_std_m: float = 0.0, lead: CornerLead = NO_LEAD,
+    eye: NDArray, across_std_m: float = 0.0, lead: CornerLead = NO_LEAD, mover_from_mps: float = 0.0,
+    mover_tol_mps: float = 0.0,
 ) -> CornerVelocity:
     """Per piece (``0 .. pieces - 1``): its corners (those in its voxels this frame) and their median velocity.
 
     ``voxels`` are clusters' voxels in a row (anchor.py's ``Footprint``), ``counts`` how many each
     cluster has and ``slot`` which piece each cluster is (-1: none): the tracker's observed clusters
     are stacked once a frame for their anchors, and only the associated ones are pieces. ``lead``:
-    when a piece's corners' velocity is carried to this frame (``CornerLead``).
+    when a piece's corners' velocity is carried to this frame (``CornerLead``). ``mover_from_mps``
+    over 0: each piece's largest group of corners moving across the line of sight (``_movers``).
     """
     owner = np.repeat(np.asarray(slot, dtype=np.int64), counts)
     if pieces == 0 or len(owner) == 0 or len(history.ids) == 0:
         none = np.full(pieces, np.inf)
-        return CornerVelocity(np.zeros((pieces, 2)), none, np.zeros(pieces, dtype=np.int64), np.zeros(pieces), none)
+        return CornerVelocity(
+            np.zeros((pieces, 2)), none, np.zeros(pieces, dtype=np.int64), np.zeros(pieces), none, np.zeros((pieces, 3))
+        )
     eye = np.asarray(eye, dtype=np.float64)
-    velocity, spread, stereo, count, across, across_spread, across_factor = _piece_velocities(
+    velocity, spread, stereo, count, across, across_spread, across_factor, mover = _piece_velocities(
         np.ascontiguousarray(voxels), owner, history.now, history.n, history.missed, max(min_samples, 2), edge,
         history.fit, history.std, pieces, eye, history.grid, history.xy, history.t, history.w,
-        float(lead.sigmas), float(lead.min_mps), int(lead.samples),
+        float(lead.sigmas), float(lead.min_mps), int(lead.samples), float(mover_from_mps), float(mover_tol_mps),
     )  # fmt: skip
     m = np.maximum(count, 1).astype(np.float64)
     shrink = np.sqrt(SHARED + (1.0 - SHARED) / m)
@@ -305,7 +310,7 @@ def corner_velocity(
         across_sigma[:] = np.inf
     known = count > 0
     return CornerVelocity(
-        velocity, np.where(known, sigma, np.inf), count, across, np.where(known, across_sigma, np.inf)
+        velocity, np.where(known, sigma, np.inf), count, across, np.where(known, across_sigma, np.inf), mover
     )
 
 
@@ -313,14 +318,15 @@ def corner_velocity(
 def _piece_velocities(
     voxels: NDArray, owner: NDArray, now: NDArray, n: NDArray, missed: NDArray, min_n: int, edge: float,
     fit: NDArray, std: NDArray, pieces: int, eye: NDArray, grid: NDArray, xy: NDArray, t: NDArray, w: NDArray,
-    lead_sigmas: float, lead_min_mps: float, lead_samples: int,
-) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, NDArray, NDArray]:  # fmt: skip
+    lead_sigmas: float, lead_min_mps: float, lead_samples: int, mover_from: float, mover_tol: float,
+) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, NDArray, NDArray, NDArray]:  # fmt: skip
     """Per piece, from the corners seen this frame with ``min_n`` positions or more that lie in one of
     its voxels (``voxels`` in a row, ``owner`` says whose; -1: nobody's; of two, the lower): the
     median of their lines' velocities (x, y), the median distance from it, the median doubt their
     ranges bring, and how many; then the median of their speeds across the line of sight from
     ``eye`` (signed), the median distance from it, and the median factor that turns a position's
-    doubt into their lines'.
+    doubt into their lines'; and, with ``mover_from`` over 0, the largest group moving across it
+    (``_movers``).
 
     Which piece each corner is on comes from corner_owners.py (``grid``: its scratch). With
     ``lead_sigmas`` over 0 a piece's lines are first carried to this frame (common/corner_lead.py):
@@ -339,18 +345,24 @@ def _piece_velocities(
         carry(slope, members, start, xy, t, n, w, lead_sigmas, lead_min_mps, lead_samples)
     doubt, off = np.empty(members.shape[0]), np.empty(members.shape[0])
     side = np.empty(members.shape[0])  # each corner's speed across its line of sight from the eye
+    ray = np.empty((members.shape[0], 2))
     for i in range(members.shape[0]):
         c = members[i]
         doubt[i] = std[c] * factor[i]
         rx, ry = now[c, 0] - eye[0], now[c, 1] - eye[1]
+        ray[i, 0], ray[i, 1] = rx, ry
         norm = max(np.sqrt(rx * rx + ry * ry), 1e-9)
         side[i] = (-ry * slope[i, 0] + rx * slope[i, 1]) / norm
     velocity, spread, stereo = np.zeros((pieces, 2)), np.zeros(pieces), np.zeros(pieces)
     across, across_spread, across_factor = np.zeros(pieces), np.zeros(pieces), np.zeros(pieces)
-    scratch = np.empty(max(1, members.shape[0]))
+    scratch, pick = np.empty(max(1, members.shape[0])), np.empty(max(1, members.shape[0]))
+    mover = np.zeros((pieces, 3))
     for p in range(pieces):
         if count[p] == 0:
             continue
+        if mover_from > 0.0:
+            mover[p, 0], mover[p, 1], mover[p, 2] = _movers(side, ray, start[p], start[p + 1], mover_from, mover_tol,
+                                                            pick, scratch)
         a, b = start[p], start[p + 1]
         vx, vy = median(slope[a:b, 0], scratch), median(slope[a:b, 1], scratch)
         velocity[p, 0], velocity[p, 1] = vx, vy
@@ -364,4 +376,46 @@ def _piece_velocities(
             off[i] = abs(side[i] - va)
         across_spread[p] = median(off[a:b], scratch)
         across_factor[p] = median(factor[a:b], scratch)
-    return velocity, spread, stereo, count, across, across_spread, across_factor
+    return velocity, spread, stereo, count, across, across_spread, across_factor, mover
+
+
+@numba.njit(cache=True)
+def _movers(
+    side: NDArray, ray: NDArray, a: int, b: int, from_mps: float, tol: float, pick: NDArray, scratch: NDArray
+) -> tuple[float, float, float]:
+    """Of corners ``a .. b - 1``: the largest group moving one way across the line of sight at
+    ``from_mps`` or more, within ``tol`` of its median: how many, their median speed across (signed)
+    and how wide they lie across the line of sight (m; ``ray``: each one's from the eye).
+
+    A walker beside a wall at 15-25 m shares its cluster (a voxel apart, colours alike after the
+    smear mixes them), and the wall's corners outvote his in the median; across the line of sight
+    each corner's speed is sure to a few centimetres a second, whatever its range's error.
+    """
+    best_k, best_v, best_w = 0, 0.0, 0.0
+    for sign in (1.0, -1.0):
+        m = 0
+        for i in range(a, b):
+            if sign * side[i] >= from_mps:
+                pick[m] = side[i]
+                m += 1
+        if m <= best_k:
+            continue
+        centre = median(pick[:m], scratch)
+        k, ux, uy = 0, 0.0, 0.0
+        for i in range(a, b):
+            if sign * side[i] >= from_mps and abs(side[i] - centre) <= tol:
+                pick[k] = side[i]
+                k += 1
+                ux += ray[i, 0]
+                uy += ray[i, 1]
+        if k <= best_k:
+            continue
+        norm = max(np.sqrt(ux * ux + uy * uy), 1e-9)
+        ux, uy = ux / norm, uy / norm
+        lo, hi = np.inf, -np.inf
+        for i in range(a, b):
+            if sign * side[i] >= from_mps and abs(side[i] - centre) <= tol:
+                x = uy * ray[i, 0] - ux * ray[i, 1]
+                lo, hi = min(lo, x), max(hi, x)
+        best_k, best_v, best_w = k, median(pick[:k], scratch), hi - lo
+    return float(best_k), best_v, best_w

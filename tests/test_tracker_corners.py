@@ -498,3 +498,55 @@ def test_a_standing_ghost_found_again_on_a_walker_takes_his_corners_pace() -> No
 
 
 _ = Cluster  # the helpers' type, re-exported for readers of this file
+
+
+
+def _wall_and_walker(walker_mps: float, seed: int, group_width_m: float = 0.3) -> CornerVelocity:
+    """One piece: a wall 17-23 m ahead, 7 m right of the line of sight, with 30 corners standing on it,
+    and a walker 0.7 m from it coming along it at ``walker_mps`` with 8 corners, ``group_width_m``
+    across; each frame's range off by 0.3 m, as at 20 m (the mapper joins the two there)."""
+    rng = np.random.default_rng(seed)
+    wall = np.column_stack([np.linspace(17.0, 23.0, 30), np.full(30, -7.0), rng.uniform(0.3, 1.8, 30)])
+    walker = np.column_stack([np.full(8, 19.5), -6.3 + np.linspace(0.0, group_width_m, 8), np.linspace(0.3, 1.6, 8)])
+    history = CornerHistory()
+    for k in range(HISTORY):
+        seen = np.concatenate([wall, walker - [walker_mps * PERIOD_S * k, 0.0, 0.0]])
+        seen *= 1.0 + rng.normal(0.0, 0.3 / 20.0, (len(seen), 1))  # along the line of sight from the origin
+        history.update(np.arange(len(seen)), seen, np.full(len(seen), 0.3), PERIOD_S * k, epoch=0)
+    piece = of_voxels(box_voxels((17.0, -7.25, 0.0), (23.0, -4.5, 2.0)))
+    stacked = footprint([piece])
+    return corner_velocity(
+        history, stacked.voxels, stacked.counts, np.arange(1), 1, EDGE, 3, np.zeros(2), 0.05, mover_from_mps=0.35,
+        mover_tol_mps=0.25,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_walker_sharing_a_walls_piece_is_a_group_of_corners_moving_across_the_line_of_sight(seed: int) -> None:
+    found = _wall_and_walker(2.0, seed)
+    assert found.mover is not None
+    count, speed, width = found.mover[0]
+    # he comes along the wall at 2 m/s, 17-20 degrees right of the line of sight: 0.6-0.7 m/s across it
+    bearing = np.arctan2(6.2, 19.5 - 0.2 * np.arange(HISTORY)).mean()
+    assert count == 8 and speed == pytest.approx(-2.0 * np.sin(bearing), abs=0.06) and width < 0.35
+    assert abs(found.across[0]) < 0.1  # the wall's corners outvote his in the median
+    # standing, he is no group; his corners spread wider than a person, the group is as wide
+    assert _wall_and_walker(0.0, seed).mover[0, 0] < 4
+    assert _wall_and_walker(2.0, seed, group_width_m=1.5).mover[0, 2] > 1.2
+
+
+def test_a_group_of_corners_moving_across_turns_a_track_moving_while_its_filter_moves_too() -> None:
+    tracker = new_tracker(corner_mover_count=8, corner_mover_mps=0.4, corner_mover_width_m=0.75)
+    for k in range(5):
+        step(tracker, k, [of_voxels(box_voxels((20.0 - 0.1 * k, -7.25, 0.0), (25.0, -5.5, 2.0)))])
+    t, labeller = tracker.tracks, tracker.labeller
+    assert len(t) == 1
+    t.corner_count[:], t.corner_velocity[:], t.corner_sigma[:] = 38, 0.0, 0.05  # their median stands
+    moving, standing = np.array([1.0]), np.array([0.2])
+    t.corner_mover[:] = (8, -0.6, 0.3)
+    assert labeller.by_mover(t, moving).all() and not labeller.by_mover(t, standing).any()
+    assert labeller.by_corners(t).tolist() == labeller.by_mover(t, np.hypot(t.x[:, 3], t.x[:, 4])).tolist()
+    for group in ((7, -0.6, 0.3), (8, -0.35, 0.3), (8, -0.6, 1.0)):  # too few, too slow, too wide
+        t.corner_mover[:] = group
+        assert not labeller.by_mover(t, moving).any(), group
+    assert not new_tracker().labeller.by_mover(t, moving).any()  # off by default

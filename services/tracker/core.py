@@ -49,7 +49,14 @@ from services.tracker.clock import FrameClock
 from services.tracker.faces import turn_ends, turn_sides
 from services.tracker.fragments import APART_BY_BOX, Sight, Standing, gather, inside_known
 from services.tracker.jumps import Jumps
-from services.tracker.keypoint_motion import NO_CORNERS, CornerRule, correct_by_corners, restart_revived, track_corners
+from services.tracker.keypoint_motion import (
+    NO_CORNERS,
+    CornerMover,
+    CornerRule,
+    correct_by_corners,
+    restart_revived,
+    track_corners,
+)
 from services.tracker.labelling import MotionLabeller
 from services.tracker.left_behind import LeftBehind, restart_from_rest
 from services.tracker.measurement import cut_covariance, stereo_covariance, view_cut_covariance, visibility_covariance
@@ -255,6 +262,12 @@ class Tracker:
                 t.corner_across_std_m,
                 t.corner_restart_count,
                 CornerLead(t.corner_lead_sigmas, t.corner_lead_min_mps, t.corner_lead_samples),
+                CornerMover(
+                    t.corner_mover_count, t.corner_mover_mps, t.corner_mover_from_mps, t.corner_mover_tol_mps,
+                    t.corner_mover_width_m, t.corner_mover_filter_mps,
+                )
+                if t.corner_mover_count > 0
+                else None,
             ),
         )
 

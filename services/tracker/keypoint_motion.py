@@ -32,6 +32,19 @@ NDArray = npt.NDArray[Any]
 
 
 @dataclass(frozen=True)
+class CornerMover:
+    """When a group of a track's corners moving across the line of sight turns it moving, though the
+    rest stand (config ``tracker.corner_mover_*``; common/corner_motion.py's ``_movers``)."""
+
+    count: int  # corners in the group
+    mps: float  # their median speed across the line of sight
+    from_mps: float  # each one's at least
+    tol_mps: float  # ... and within this of the group's
+    width_m: float  # the group's width across the line of sight, at most
+    filter_mps: float  # the track's filter's speed, over
+
+
+@dataclass(frozen=True)
 class CornerRule:
     """When the corners on a track label it (config ``tracker.corner_*``; labelling.py)."""
 
@@ -47,6 +60,7 @@ class CornerRule:
     across_std_m: float = 0.0  # a corner's position doubt across the line of sight (m); 0: not judged across
     restart_count: int = 0  # this many or more, beyond a revived standing ghost's filter's gate, restart it; 0: never
     lead: CornerLead = NO_LEAD  # when their velocity is carried to this frame by their acceleration
+    mover: CornerMover | None = None  # when a group of them moving across the line of sight turns it moving
 
 
 NO_CORNERS = CornerRule()
@@ -66,16 +80,19 @@ def track_corners(
     ``cols`` of ``stacked``): their median velocity, its doubt and their number, and their speed across
     the line of sight from ``eye``; none on an unseen track."""
     t.corner_count[:] = 0
+    t.corner_mover[:] = 0.0
     if rule.samples <= 0 or len(rows) == 0:
         return
     slot = np.full(len(stacked.counts), -1, dtype=np.int64)
     slot[cols] = np.arange(len(cols))
     c = corner_velocity(
         history, stacked.voxels, stacked.counts, slot, len(rows), edge, rule.samples, eye, rule.across_std_m,
-        rule.lead,
+        rule.lead, *((rule.mover.from_mps, rule.mover.tol_mps) if rule.mover is not None else (0.0, 0.0)),
     )  # fmt: skip
     t.corner_velocity[rows], t.corner_sigma[rows], t.corner_count[rows] = c.velocity, c.sigma, c.count
     t.corner_across[rows], t.corner_across_sigma[rows] = c.across, c.across_sigma
+    if c.mover is not None:
+        t.corner_mover[rows] = c.mover
 
 
 def correct_by_corners(t: TrackTable, rule: CornerRule) -> None:

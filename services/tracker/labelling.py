@@ -197,7 +197,24 @@ class MotionLabeller:
         filtered = np.hypot(t.x[:, 3], t.x[:, 4])
         on = self.hysteresis.on
         turn_on = sure & (low > self.corners.on_mps) & (filtered > on) & (t.age >= self.hysteresis.min_frames)
-        return np.where(t.moving, sure & (low >= self.hysteresis.off), turn_on)
+        return np.where(t.moving, sure & (low >= self.hysteresis.off), turn_on) | self.by_mover(t, filtered)
+
+    def by_mover(self, t: TrackTable, filtered: NDArray) -> NDArray:
+        """Which tracks hold a group of corners moving across the line of sight (``CornerMover``),
+        however many more stand, while the filter sees it move.
+
+        A walker at 15-25 m on the pavement a voxel from a wall shares its cluster, and the wall's
+        corners outvote his: 75 of urban's 111 walker-frames tracked but labelled standing (seeds
+        7-100, session 70's runs) had a wall or a building within 1.5 m. His own corners read his
+        motion across the line of sight to a few centimetres a second (docs/results/tracking.md,
+        "Session 71").
+        """
+        m = self.corners.mover
+        if m is None:
+            return np.zeros(len(t), dtype=bool)
+        count, speed, width = t.corner_mover[:, 0], t.corner_mover[:, 1], t.corner_mover[:, 2]
+        group = (count >= m.count) & (np.abs(speed) >= m.mps) & (width <= m.width_m)
+        return group & (filtered > m.filter_mps) & (t.age >= self.hysteresis.min_frames)
 
     def window_bounds(
         self, t: TrackTable, k: float, upright: NDArray, direction: NDArray | None = None

@@ -67,6 +67,7 @@ class TrackTable:
     corner_count: NDArray = _empty(dtype=np.int64)  # ... and how many corners; 0: none, no opinion
     corner_across: NDArray = _empty()  # their median speed across the line of sight (signed, m/s)
     corner_across_sigma: NDArray = _empty()  # ... its doubt (m/s)
+    corner_mover: NDArray = _empty(3)  # their largest group moving across it: how many, speed (signed), width (m)
 
     def __len__(self) -> int:
         return int(self.ids.shape[0])
@@ -131,6 +132,7 @@ def born(ids: NDArray, obs: Observations, p: NDArray, clock: float, parted: NDAr
         corner_count=np.zeros(n, dtype=np.int64),
         corner_across=np.zeros(n),
         corner_across_sigma=np.full(n, np.inf),
+        corner_mover=np.zeros((n, 3)),
     )
 
 
