@@ -360,10 +360,9 @@ def _piece_velocities(
     for p in range(pieces):
         if count[p] == 0:
             continue
-        if mover_from > 0.0:
-            mover[p, 0], mover[p, 1], mover[p, 2] = _movers(side, ray, start[p], start[p + 1], mover_from, mover_tol,
-                                                            pick, scratch)
         a, b = start[p], start[p + 1]
+        if mover_from > 0.0:
+            mover[p, 0], mover[p, 1], mover[p, 2] = _movers(side, ray, a, b, mover_from, mover_tol, pick, scratch)
         vx, vy = median(slope[a:b, 0], scratch), median(slope[a:b, 1], scratch)
         velocity[p, 0], velocity[p, 1] = vx, vy
         for i in range(a, b):

@@ -77,8 +77,9 @@ def track_corners(
     eye: NDArray,
 ) -> None:
     """Each track's corners this frame, from the cluster it was paired with (track ``rows``, observation
-    ``cols`` of ``stacked``): their median velocity, its doubt and their number, and their speed across
-    the line of sight from ``eye``; none on an unseen track."""
+    ``cols`` of ``stacked``): their median velocity, its doubt and their number, their speed across
+    the line of sight from ``eye``, and (``rule.mover``) their largest group moving across it; none on
+    an unseen track."""
     t.corner_count[:] = 0
     t.corner_mover[:] = 0.0
     if rule.samples <= 0 or len(rows) == 0:

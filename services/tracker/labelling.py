@@ -191,7 +191,8 @@ class MotionLabeller:
         Turning one on needs the corners sure (``sigma_k`` sigmas) of ``on_mps``, a little less than a walker's
         pace, and the filter's speed, doubt aside, over the threshold: corners on a pole's or a bin's
         edge see the background through their window and drift with it, while the filter sees the
-        pole stand still. Keeping one moving needs them sure of the lower threshold alone.
+        pole stand still. Keeping one moving needs them sure of the lower threshold alone. A group of
+        them moving across the line of sight turns it moving too, however many more stand (``by_mover``).
         """
         low, _, sure = self._corner_speed(t)
         filtered = np.hypot(t.x[:, 3], t.x[:, 4])
