@@ -39,7 +39,6 @@ import numpy as np
 import numpy.typing as npt
 
 from common.config import Config, VolumeConfig
-from common.corner_lead import CornerLead
 from common.corner_motion import CornerHistory
 from common.messages import Cluster, Clusters, EgoMotion, Obstacles
 from services.tracker import kalman, motion_window
@@ -51,8 +50,8 @@ from services.tracker.fragments import APART_BY_BOX, Sight, Standing, gather, in
 from services.tracker.jumps import Jumps
 from services.tracker.keypoint_motion import (
     NO_CORNERS,
-    CornerMover,
     CornerRule,
+    corner_rule,
     correct_by_corners,
     restart_revived,
     track_corners,
@@ -249,26 +248,7 @@ class Tracker:
                 t.motion_model_young_on,
                 t.motion_model_young_sigma_mps,
             ),
-            corners=CornerRule(
-                t.corner_samples,
-                t.corner_min_count,
-                t.corner_on_mps,
-                t.corner_sigma_k,
-                t.corner_still_mps,
-                t.corner_update_gate,
-                t.corner_update_floor_mps,
-                t.corner_confirm_count,
-                t.corner_blend_count,
-                t.corner_across_std_m,
-                t.corner_restart_count,
-                CornerLead(t.corner_lead_sigmas, t.corner_lead_min_mps, t.corner_lead_samples),
-                CornerMover(
-                    t.corner_mover_count, t.corner_mover_mps, t.corner_mover_from_mps, t.corner_mover_tol_mps,
-                    t.corner_mover_width_m, t.corner_mover_filter_mps,
-                )
-                if t.corner_mover_count > 0
-                else None,
-            ),
+            corners=corner_rule(t),
         )
 
     def process(self, clusters: Clusters, ego: EgoMotion) -> Obstacles:

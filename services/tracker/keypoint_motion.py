@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from common.config import TrackerConfig
 from common.corner_lead import NO_LEAD, CornerLead
 from common.corner_motion import CornerHistory, corner_velocity
 from services.tracker import kalman
@@ -64,6 +65,20 @@ class CornerRule:
 
 
 NO_CORNERS = CornerRule()
+
+
+def corner_rule(t: TrackerConfig) -> CornerRule:
+    """The corners' rule as the tracker's settings give it (``tracker.corner_*``)."""
+    return CornerRule(
+        t.corner_samples, t.corner_min_count, t.corner_on_mps, t.corner_sigma_k, t.corner_still_mps,
+        t.corner_update_gate, t.corner_update_floor_mps, t.corner_confirm_count, t.corner_blend_count,
+        t.corner_across_std_m, t.corner_restart_count,
+        CornerLead(t.corner_lead_sigmas, t.corner_lead_min_mps, t.corner_lead_samples),
+        CornerMover(
+            t.corner_mover_count, t.corner_mover_mps, t.corner_mover_from_mps, t.corner_mover_tol_mps,
+            t.corner_mover_width_m, t.corner_mover_filter_mps,
+        ) if t.corner_mover_count > 0 else None,
+    )  # fmt: skip
 
 
 def track_corners(
